@@ -1,0 +1,113 @@
+"""Binary little-endian PLY particle files (via ``plyfile``)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from plyfile import PlyData, PlyElement
+
+from abmpm.errors import OutputError
+from abmpm.io.atomic import atomic_write
+
+_AXES = ("x", "y", "z")
+
+
+def _column_dtype(a: np.ndarray) -> str:
+    if a.dtype == np.uint8:
+        return "u1"
+    if a.dtype == np.bool_:
+        return "u1"
+    if np.issubdtype(a.dtype, np.integer):
+        return "i4"
+    if np.issubdtype(a.dtype, np.floating):
+        return "f4"
+    raise OutputError(f"PLY attribute of unsupported dtype {a.dtype}")
+
+
+def _vector_names(name: str) -> tuple[str, str, str]:
+    if name == "v":
+        return ("vx", "vy", "vz")
+    return tuple(f"{name}_{c}" for c in _AXES)  # type: ignore[return-value]
+
+
+def write_particles_ply(
+    path: str | os.PathLike,
+    x: np.ndarray,
+    attributes: dict[str, np.ndarray] | None = None,
+) -> None:
+    """Write particles as a binary little-endian PLY point cloud (atomic).
+
+    The ``vertex`` element has ``x y z`` (float32) then one property per attribute
+    column: an (N,3) array ``name`` becomes ``name_x name_y name_z`` (``v`` becomes
+    ``vx vy vz``); (N,) floats are float32, ints int32, uint8/bool stay uint8.
+    """
+    path = Path(path)
+    x = np.asarray(x)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise OutputError(f"{path}: positions must have shape (N, 3), got {x.shape}")
+    n = x.shape[0]
+    columns: list[tuple[str, str, np.ndarray]] = [
+        (c, "f4", x[:, i]) for i, c in enumerate(_AXES)
+    ]
+    for name, arr in (attributes or {}).items():
+        a = np.asarray(arr)
+        if a.shape[0] != n:
+            raise OutputError(
+                f"{path}: attribute {name!r} has {a.shape[0]} rows, expected {n}"
+            )
+        dt = _column_dtype(a)
+        if a.ndim == 1:
+            columns.append((name, dt, a))
+        elif a.ndim == 2 and a.shape[1] == 3:
+            for i, cname in enumerate(_vector_names(name)):
+                columns.append((cname, dt, a[:, i]))
+        else:
+            raise OutputError(
+                f"{path}: attribute {name!r} must have shape (N,) or (N, 3), got {a.shape}"
+            )
+    names = [c[0] for c in columns]
+    if len(set(names)) != len(names):
+        raise OutputError(f"{path}: duplicate PLY property names {names}")
+    vertex = np.empty(n, dtype=[(c[0], "<" + c[1]) for c in columns])
+    for cname, _, col in columns:
+        vertex[cname] = col
+    element = PlyElement.describe(vertex, "vertex")
+    with atomic_write(path) as tmp:
+        PlyData([element], text=False, byte_order="<").write(str(tmp))
+
+
+def read_particles_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a particle PLY written by :func:`write_particles_ply`.
+
+    Returns ``{"x": (N,3) float32, ...}`` with vector attributes regrouped into
+    (N,3) arrays (``vx vy vz`` -> ``"v"``, ``name_x name_y name_z`` -> ``name``).
+    """
+    path = Path(path)
+    try:
+        ply = PlyData.read(str(path))
+    except (OSError, ValueError) as exc:
+        raise OutputError(f"cannot read PLY file {path}: {exc}") from exc
+    data = ply["vertex"].data
+    names = list(data.dtype.names)
+    out: dict[str, np.ndarray] = {}
+    used: set[str] = set()
+    out["x"] = np.stack([np.asarray(data[c]) for c in _AXES], axis=1)
+    used.update(_AXES)
+    for name in names:
+        if name in used:
+            continue
+        group = None
+        if name == "vx":
+            group = ("v", ("vx", "vy", "vz"))
+        elif name.endswith("_x"):
+            base = name[:-2]
+            group = (base, _vector_names(base))
+        if group is not None and all(c in names for c in group[1]):
+            out[group[0]] = np.stack([np.asarray(data[c]) for c in group[1]], axis=1)
+            used.update(group[1])
+        else:
+            out[name] = np.asarray(data[name]).copy()
+            used.add(name)
+    return out

@@ -1,0 +1,236 @@
+"""The scene description: one validated data model for Python and TOML alike.
+
+A scene built in Python (``Scene(simulation=..., materials=[...], bodies=[...])``)
+and a scene loaded from a TOML file go through the same pydantic models, so both
+paths get the same defaults and the same error messages. Units are SI throughout
+(m, s, kg, Pa); y is up.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+Vec3 = tuple[float, float, float]
+PositiveFloat = Annotated[float, Field(gt=0)]
+
+
+class _Strict(BaseModel):
+    # Unknown keys are errors: a typo in a scene file must not be silently ignored.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+class Walls(_Strict):
+    """Boundary condition on the six faces of the domain box."""
+
+    type: Literal["sticky", "slip", "separate"] = "separate"
+    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient (slip/separate walls)")
+
+
+class SimulationSettings(_Strict):
+    domain_min: Vec3 = (0.0, 0.0, 0.0)
+    domain_max: Vec3 = (1.0, 1.0, 1.0)
+    dx: PositiveFloat = 0.02
+    gravity: Vec3 = (0.0, -9.81, 0.0)
+    duration: PositiveFloat = 2.0
+    fps: PositiveFloat = 30.0
+    cfl: float = Field(0.4, gt=0, le=1.0, description="time step = cfl * dx / wave speed")
+    max_dt: PositiveFloat = 1e-3
+    seed: int = 0
+    device: str | None = Field(None, description="'cpu', 'cuda' or 'cuda:N'; default: cuda when available")
+    walls: Walls = Walls()
+
+    @model_validator(mode="after")
+    def _domain_is_a_box(self):
+        for axis in range(3):
+            if not self.domain_max[axis] > self.domain_min[axis]:
+                raise ValueError(
+                    f"domain_max must exceed domain_min on every axis (axis {'xyz'[axis]}: "
+                    f"{self.domain_min[axis]} >= {self.domain_max[axis]})"
+                )
+        cells = [(self.domain_max[a] - self.domain_min[a]) / self.dx for a in range(3)]
+        if min(cells) < 4:
+            raise ValueError(f"dx={self.dx} leaves fewer than 4 cells across the domain")
+        if math.prod(c + 8 for c in cells) > 2.0e9:
+            raise ValueError(f"dx={self.dx} makes a grid of more than 2e9 nodes")
+        return self
+
+
+# --------------------------------------------------------------------------- materials
+
+
+class _MaterialBase(_Strict):
+    name: str = Field(min_length=1)
+    density: PositiveFloat = 1000.0
+
+
+class Fluid(_MaterialBase):
+    """Weakly compressible fluid: p = K (1/J^gamma - 1)/gamma plus Newtonian viscosity."""
+
+    model: Literal["fluid"] = "fluid"
+    bulk_modulus: PositiveFloat = 2.0e5
+    gamma: float = Field(7.0, ge=1.0, description="Tait exponent of the equation of state")
+    viscosity: float = Field(0.0, ge=0, description="dynamic viscosity, Pa s")
+
+
+class _Solid(_MaterialBase):
+    youngs_modulus: PositiveFloat = 1.0e5
+    poisson_ratio: float = Field(0.3, gt=-1.0, lt=0.5)
+
+
+class Elastic(_Solid):
+    """Fixed-corotated hyperelastic solid (Stomakhin et al. 2013 without plasticity)."""
+
+    model: Literal["elastic"] = "elastic"
+
+
+class Viscoelastic(_Solid):
+    """Fixed-corotated solid whose deviatoric strain relaxes (Maxwell) plus viscous damping."""
+
+    model: Literal["viscoelastic"] = "viscoelastic"
+    viscosity: float = Field(1.0, ge=0, description="Kelvin-Voigt damping viscosity, Pa s")
+    relaxation_time: PositiveFloat = Field(0.5, description="Maxwell relaxation time of shear strain, s")
+
+
+class Sand(_Solid):
+    """Drucker-Prager elastoplastic sand (Klar et al. 2016), cohesionless."""
+
+    model: Literal["sand"] = "sand"
+    friction_angle: float = Field(30.0, gt=0, lt=90, description="internal friction angle, degrees")
+
+
+class Snow(_Solid):
+    """Snow plasticity (Stomakhin et al. 2013)."""
+
+    model: Literal["snow"] = "snow"
+    critical_compression: float = Field(2.5e-2, gt=0, lt=1)
+    critical_stretch: float = Field(7.5e-3, gt=0)
+    hardening: float = Field(10.0, ge=0)
+
+
+Material = Annotated[Union[Fluid, Elastic, Viscoelastic, Sand, Snow], Field(discriminator="model")]
+
+
+# --------------------------------------------------------------------------- bodies
+
+
+class _BodyBase(_Strict):
+    material: str = Field(min_length=1, description="name of a material of this scene")
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    angular_velocity: Vec3 = Field((0.0, 0.0, 0.0), description="rad/s, about the body's centre")
+    particles_per_cell: int = Field(8, ge=1, le=125)
+
+    @field_validator("particles_per_cell")
+    @classmethod
+    def _cube_number(cls, n: int) -> int:
+        k = round(n ** (1 / 3))
+        if k**3 != n:
+            raise ValueError(f"must be a cube number (1, 8, 27, 64, 125), got {n}")
+        return n
+
+
+class BoxBody(_BodyBase):
+    shape: Literal["box"] = "box"
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if any(self.max[a] <= self.min[a] for a in range(3)):
+            raise ValueError("box max must exceed min on every axis")
+        return self
+
+
+class SphereBody(_BodyBase):
+    shape: Literal["sphere"] = "sphere"
+    center: Vec3
+    radius: PositiveFloat
+
+
+class EllipsoidBody(_BodyBase):
+    shape: Literal["ellipsoid"] = "ellipsoid"
+    center: Vec3
+    radii: tuple[PositiveFloat, PositiveFloat, PositiveFloat]
+    rotation: Vec3 = Field((0.0, 0.0, 0.0), description="XYZ Euler angles, degrees")
+
+
+class MeshBody(_BodyBase):
+    shape: Literal["mesh"] = "mesh"
+    file: Path
+    scale: float | tuple[PositiveFloat, PositiveFloat, PositiveFloat] = 1.0
+    rotation: Vec3 = (0.0, 0.0, 0.0)
+    translation: Vec3 = (0.0, 0.0, 0.0)
+
+    @field_validator("scale")
+    @classmethod
+    def _positive_scale(cls, s):
+        if isinstance(s, (int, float)) and s <= 0:
+            raise ValueError("must be > 0")
+        return s
+
+
+class BunnyBody(_BodyBase):
+    """Procedural bunny-like shape (a union of ellipsoids) for demos."""
+
+    shape: Literal["bunny"] = "bunny"
+    center: Vec3
+    size: PositiveFloat = Field(0.2, description="overall height of the bunny, m")
+    rotation: Vec3 = (0.0, 0.0, 0.0)
+
+
+Body = Annotated[
+    Union[BoxBody, SphereBody, EllipsoidBody, MeshBody, BunnyBody], Field(discriminator="shape")
+]
+
+
+# --------------------------------------------------------------------------- output
+
+
+class Output(_Strict):
+    frames: bool = True
+    frame_every: int = Field(1, ge=1, description="write every N-th frame")
+    preview: bool = True
+    color_by: Literal["material", "speed", "level"] = "material"
+    checkpoint_every: int = Field(10, ge=1, description="write a checkpoint every N frames")
+    usd: bool = False
+
+
+# --------------------------------------------------------------------------- scene
+
+
+class Scene(_Strict):
+    name: str = "scene"
+    simulation: SimulationSettings = SimulationSettings()
+    materials: list[Material] = Field(min_length=1)
+    bodies: list[Body] = Field(min_length=1)
+    output: Output = Output()
+    # Folder that relative paths (mesh files) resolve against; set by the TOML loader.
+    base_dir: Path | None = Field(None, exclude=True)
+
+    @model_validator(mode="after")
+    def _references(self):
+        names = [m.name for m in self.materials]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise ValueError(f"materials[{i}].name: duplicate material name {n!r}")
+        for i, b in enumerate(self.bodies):
+            if b.material not in names:
+                raise ValueError(
+                    f"bodies[{i}].material: unknown material {b.material!r} (known: {', '.join(names)})"
+                )
+        return self
+
+    def material_index(self, name: str) -> int:
+        return [m.name for m in self.materials].index(name)
+
+    def resolve(self, path: Path) -> Path:
+        path = Path(path).expanduser()
+        if not path.is_absolute() and self.base_dir is not None:
+            path = Path(self.base_dir) / path
+        return path

@@ -1,0 +1,164 @@
+"""Particle-grid transfers of MLS-MPM with APIC (paper Eqs. 1-12).
+
+Kernels are parameterised by the receiving grid's :class:`GridSpec`, so they serve
+the original grid (dx) and the subdivided grid (dx/b) alike.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .grid import WALL_SEPARATE, WALL_STICKY, GridSpec
+from .materials import MaterialParams, kirchhoff_stress, project_deformation
+
+
+@wp.func
+def bspline_weights(fx: wp.vec3):
+    # Quadratic B-spline weights of the 3 nodes per axis; rows = node offset 0,1,2,
+    # columns = axis. fx is the particle position relative to the base node, in cells.
+    a = wp.vec3(1.5) - fx
+    b = fx - wp.vec3(1.0)
+    c = fx - wp.vec3(0.5)
+    return wp.matrix_from_rows(0.5 * wp.cw_mul(a, a), wp.vec3(0.75) - wp.cw_mul(b, b), 0.5 * wp.cw_mul(c, c))
+
+
+@wp.func
+def stencil_base(g: GridSpec, x: wp.vec3):
+    X = (x - g.origin) * g.inv_dx
+    return wp.vec3i(int(X[0] - 0.5), int(X[1] - 0.5), int(X[2] - 0.5))
+
+
+@wp.func
+def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
+    X = (x - g.origin) * g.inv_dx
+    return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+
+
+@wp.kernel
+def p2g(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    C: wp.array(dtype=wp.mat33),
+    F: wp.array(dtype=wp.mat33),
+    plastic: wp.array(dtype=float),
+    mass: wp.array(dtype=float),
+    volume: wp.array(dtype=float),
+    material: wp.array(dtype=wp.int32),
+    materials: wp.array(dtype=MaterialParams),
+    g: GridSpec,
+    dt: float,
+    grid_mv: wp.array3d(dtype=wp.vec3),
+    grid_m: wp.array3d(dtype=float),
+):
+    p = wp.tid()
+    xp = x[p]
+    base = stencil_base(g, xp)
+    fx = stencil_offset(g, xp, base)
+    w = bspline_weights(fx)
+    m = mass[p]
+    tau = kirchhoff_stress(materials[material[p]], F[p], C[p], plastic[p])
+    # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
+    # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
+    affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * C[p]
+    mv = m * v[p]
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                weight = w[i, 0] * w[j, 1] * w[k, 2]
+                wp.atomic_add(grid_mv, base[0] + i, base[1] + j, base[2] + k, weight * (mv + affine * dpos))
+                wp.atomic_add(grid_m, base[0] + i, base[1] + j, base[2] + k, weight * m)
+
+
+@wp.func
+def wall_response(v: wp.vec3, n: wp.vec3, wall_type: int, friction: float):
+    # n points from the wall into the domain
+    if wall_type == WALL_STICKY:
+        return wp.vec3(0.0)
+    vn = wp.dot(v, n)
+    if vn >= 0.0 and wall_type == WALL_SEPARATE:
+        return v  # leaving the wall is free
+    vt = v - vn * n
+    if vn < 0.0 and friction > 0.0:
+        # Coulomb: the tangential speed drops by mu |v_n|, never reversing
+        vt_len = wp.length(vt)
+        if vt_len > 0.0:
+            vt = vt * wp.max(0.0, 1.0 - friction * (-vn) / vt_len)
+    return vt  # slip: no normal motion either way; separate: only inbound removed
+
+
+@wp.kernel
+def grid_update(
+    g: GridSpec,
+    dt: float,
+    grid_mv: wp.array3d(dtype=wp.vec3),
+    grid_m: wp.array3d(dtype=float),
+    grid_v: wp.array3d(dtype=wp.vec3),
+):
+    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls; also clears the P2G
+    # accumulators for the next step so the grid is swept once per step.
+    i, j, k = wp.tid()
+    m = grid_m[i, j, k]
+    vi = wp.vec3(0.0)
+    if m > 0.0:
+        vi = grid_mv[i, j, k] / m + dt * g.gravity
+        xi = g.origin + wp.vec3(float(i), float(j), float(k)) * g.dx
+        for d in range(3):
+            if xi[d] <= g.domain_lo[d]:
+                n = wp.vec3(0.0)
+                n[d] = 1.0
+                vi = wall_response(vi, n, g.wall_type, g.wall_friction)
+            if xi[d] >= g.domain_hi[d]:
+                n = wp.vec3(0.0)
+                n[d] = -1.0
+                vi = wall_response(vi, n, g.wall_type, g.wall_friction)
+    grid_v[i, j, k] = vi
+    grid_mv[i, j, k] = wp.vec3(0.0)
+    grid_m[i, j, k] = 0.0
+
+
+@wp.kernel
+def g2p(
+    x: wp.array(dtype=wp.vec3),
+    F: wp.array(dtype=wp.mat33),
+    plastic: wp.array(dtype=float),
+    material: wp.array(dtype=wp.int32),
+    materials: wp.array(dtype=MaterialParams),
+    g: GridSpec,
+    dt: float,
+    grid_v: wp.array3d(dtype=wp.vec3),
+    x_out: wp.array(dtype=wp.vec3),
+    v_out: wp.array(dtype=wp.vec3),
+    C_out: wp.array(dtype=wp.mat33),
+    F_out: wp.array(dtype=wp.mat33),
+    plastic_out: wp.array(dtype=float),
+):
+    p = wp.tid()
+    xp = x[p]
+    base = stencil_base(g, xp)
+    fx = stencil_offset(g, xp, base)
+    w = bspline_weights(fx)
+    new_v = wp.vec3(0.0)
+    B = wp.mat33(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                weight = w[i, 0] * w[j, 1] * w[k, 2]
+                vi = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                new_v += weight * vi  # Eq. 5 / 11
+                B += weight * wp.outer(vi, dpos)
+    # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
+    new_C = (4.0 * g.inv_dx * g.inv_dx) * B
+    # Eq. 7, then the material's return mapping (Eqs. 13-14)
+    mat = materials[material[p]]
+    d = project_deformation(mat, (wp.identity(n=3, dtype=float) + dt * new_C) * F[p], plastic[p], dt)
+    # advect; particles never leave the domain box (last line of wall defence)
+    xn = xp + dt * new_v
+    for a in range(3):
+        xn[a] = wp.clamp(xn[a], g.domain_lo[a], g.domain_hi[a])
+    x_out[p] = xn
+    v_out[p] = new_v
+    C_out[p] = new_C
+    F_out[p] = d.F
+    plastic_out[p] = d.plastic

@@ -1,0 +1,276 @@
+"""Public entry point: ``Simulation(scene).advance(frames=10)``.
+
+Data flows one way: scene (validated description) -> geometry (particle samples)
+-> simulation state on the device -> solver step -> host snapshots for output.
+The Simulation owns time stepping (frames at a fixed rate, CFL substeps between),
+diagnostics and the blow-up check. It reads no files itself except through
+geometry's mesh loading of the scene's bodies.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .errors import AbmpmError, SimulationBlowUp
+from .geometry.sampling import particle_volume, sample_body
+from .scene.model import Scene
+from .sim.diagnostics import first_non_finite, frame_diagnostics
+from .sim.materials import material_params, wave_speed
+from .sim.solver import MPMSolver, SolverConfig
+from .sim.state import DYNAMIC, STATIC, ParticleState
+
+SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
+
+_warp_ready = False
+
+
+def init_warp() -> None:
+    global _warp_ready
+    if not _warp_ready:
+        wp.config.quiet = True
+        wp.init()
+        _warp_ready = True
+
+
+def choose_device(requested: str | None) -> str:
+    """'cuda' when a GPU is present, else 'cpu'; an explicit request is honoured or refused."""
+    init_warp()
+    has_cuda = wp.get_cuda_device_count() > 0
+    if requested in (None, "", "auto"):
+        return "cuda:0" if has_cuda else "cpu"
+    if requested == "cpu":
+        return "cpu"
+    if requested.startswith("cuda"):
+        if not has_cuda:
+            raise AbmpmError(f"device {requested!r} requested but no CUDA device is available (use 'cpu')")
+        return "cuda:0" if requested == "cuda" else requested
+    raise AbmpmError(f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')")
+
+
+@dataclass(frozen=True)
+class Particles:
+    """Host copy of the particle state (numpy arrays, float32 / int32)."""
+
+    x: np.ndarray
+    v: np.ndarray
+    mass: np.ndarray
+    volume: np.ndarray
+    material: np.ndarray
+    level: np.ndarray
+    C: np.ndarray
+    F: np.ndarray
+    plastic: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+
+def skew(w) -> np.ndarray:
+    """Matrix of the cross product w x (.)"""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
+    """Particles of every body, as numpy arrays (deterministic by the scene's seed)."""
+    st = scene.simulation
+    rng = np.random.default_rng(st.seed)
+    parts = []
+    for i, body in enumerate(scene.bodies):
+        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]")
+        n = len(x)
+        mat = scene.materials[scene.material_index(body.material)]
+        vol = particle_volume(st.dx, body.particles_per_cell)
+        w = np.asarray(getattr(body, "angular_velocity", (0.0, 0.0, 0.0)), dtype=np.float64)
+        centre = x.astype(np.float64).mean(axis=0)
+        v = np.asarray(body.velocity, dtype=np.float64) + np.cross(w, x - centre)
+        parts.append(
+            {
+                "x": x.astype(np.float32),
+                "v": v.astype(np.float32),
+                # a rigid spin's velocity gradient is skew(w): start APIC consistent with it
+                "C": np.tile(skew(w).astype(np.float32), (n, 1, 1)),
+                "mass": np.full(n, vol * mat.density, dtype=np.float32),
+                "volume": np.full(n, vol, dtype=np.float32),
+                "material": np.full(n, scene.material_index(body.material), dtype=np.int32),
+                "level": np.zeros(n, dtype=np.int32),
+            }
+        )
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+class Simulation:
+    """A running simulation of a :class:`~abmpm.scene.model.Scene`."""
+
+    def __init__(self, scene: Scene, device: str | None = None):
+        init_warp()
+        self.scene = scene
+        st = scene.simulation
+        self.device = choose_device(device if device is not None else st.device)
+        self.frame_dt = 1.0 / st.fps
+        self.dx = st.dx
+        used = {b.material for b in scene.bodies}
+        self.wave_speed = max(wave_speed(m) for m in scene.materials if m.name in used)
+        self.solver = MPMSolver(
+            SolverConfig(
+                domain_lo=st.domain_min, domain_hi=st.domain_max, dx=st.dx, gravity=st.gravity,
+                wall_type=st.walls.type, wall_friction=st.walls.friction,
+            ),
+            [material_params(m) for m in scene.materials],
+            self.device,
+        )
+        arrays = sample_scene(scene)
+        self._load_arrays(arrays)
+        self.frame = 0
+        self.substep = 0
+        self.steps = 0
+        self.history: list[dict] = []
+        self._choose_dt(float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()))
+        self.solver.sort_by_cell(self._state, self._next)
+        self._last_good = self._state.numpy()
+        self.history.append(self._diagnostics(self._last_good))
+
+    # ------------------------------------------------------------------ time stepping
+
+    def _load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
+        self._state = ParticleState.from_numpy(arrays, self.device)
+        self._next = self._state.twin()
+
+    def _choose_dt(self, max_speed: float) -> None:
+        """CFL on the grid spacing with the wave speed plus the fastest particle, capped
+        by max_dt, then shortened so that a whole number of substeps fills a frame."""
+        st = self.scene.simulation
+        dt = min(st.max_dt, st.cfl * self.dx / (self.wave_speed + max_speed))
+        self.substeps = max(1, math.ceil(self.frame_dt / dt - 1e-9))
+        self.dt = self.frame_dt / self.substeps
+
+    @property
+    def time(self) -> float:
+        return self.frame * self.frame_dt + self.substep * self.dt
+
+    @property
+    def particle_count(self) -> int:
+        return self._state.count
+
+    def step(self) -> None:
+        """One substep of length ``self.dt``; frame bookkeeping when a frame completes."""
+        self.solver.step(self._state, self._next, self.dt)
+        self._state, self._next = self._next, self._state
+        self.steps += 1
+        self.substep += 1
+        if self.substep == self.substeps:
+            self._end_frame()
+
+    def advance(self, seconds: float | None = None, frames: int | None = None, callback=None) -> None:
+        """Run whole frames, or a duration in seconds (stopping at the first substep
+        boundary at or after it). ``callback(sim)`` is called after every frame."""
+        if (seconds is None) == (frames is None):
+            raise ValueError("give exactly one of seconds= or frames=")
+        if frames is not None:
+            target = self.frame + int(frames)
+            while self.frame < target:
+                self._run_frame(callback)
+            return
+        t_end = self.time + float(seconds)
+        while self.time < t_end - 1e-9 * max(1.0, t_end):
+            frame = self.frame
+            self.step()
+            if callback is not None and self.frame != frame:
+                callback(self)
+
+    def _run_frame(self, callback) -> None:
+        for _ in range(self.substeps - self.substep):
+            self.solver.step(self._state, self._next, self.dt)
+            self._state, self._next = self._next, self._state
+            self.steps += 1
+        self.substep = self.substeps
+        self._end_frame()
+        if callback is not None:
+            callback(self)
+
+    def _end_frame(self) -> None:
+        snap = self._state.numpy()
+        self.frame += 1
+        self.substep = 0
+        bad = first_non_finite(snap)
+        if bad is not None:
+            self.frame -= 1
+            raise SimulationBlowUp(
+                f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
+                f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
+            )
+        diag = self._diagnostics(snap)
+        if diag["max_speed"] * self.dt > self.dx:
+            self.frame -= 1
+            raise SimulationBlowUp(
+                f"simulation blew up at step {self.steps} (t = {self.time + self.frame_dt:.4f} s): "
+                f"max speed {diag['max_speed']:.3g} m/s moves a particle more than one cell per step "
+                f"(dx = {self.dx}, dt = {self.dt:.3g}); last good frame is {self.frame}. "
+                f"Lower cfl / max_dt or stiffness."
+            )
+        self._last_good = snap
+        self.history.append(diag)
+        self._choose_dt(diag["max_speed"])
+        if self.frame % SORT_EVERY_FRAMES == 0:
+            self.solver.sort_by_cell(self._state, self._next)
+
+    # ------------------------------------------------------------------ inspection
+
+    def _diagnostics(self, snap: dict[str, np.ndarray]) -> dict:
+        d = frame_diagnostics(snap, {0: self.dx})
+        d.update(frame=self.frame, time=self.frame * self.frame_dt, steps=self.steps, dt=self.dt)
+        return d
+
+    def particles(self) -> Particles:
+        return Particles(**self._state.numpy())
+
+    def diagnostics(self) -> dict:
+        """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""
+        d = frame_diagnostics(self._state.numpy(), {0: self.dx})
+        d.update(frame=self.frame, time=self.time, steps=self.steps, dt=self.dt)
+        return d
+
+    def set_particles(self, **arrays: np.ndarray) -> None:
+        """Overwrite per-particle fields (e.g. ``v=...``) of the current state."""
+        current = self._state.numpy()
+        for k, a in arrays.items():
+            if k not in current:
+                raise KeyError(f"unknown particle field {k!r}")
+            if np.shape(a) != current[k].shape:
+                raise ValueError(f"{k}: expected shape {current[k].shape}, got {np.shape(a)}")
+            current[k] = np.asarray(a, dtype=current[k].dtype)
+        self._load_arrays(current)
+
+    # ------------------------------------------------------------------ checkpoints
+
+    def state_dict(self, last_good: bool = False) -> tuple[dict[str, np.ndarray], dict]:
+        """Arrays and metadata to resume from (at a frame boundary)."""
+        if self.substep != 0:
+            raise RuntimeError("checkpoints are taken at frame boundaries")
+        arrays = dict(self._last_good) if last_good else self._state.numpy()
+        frame = self.history[-1]["frame"] if last_good else self.frame
+        meta = {
+            "frame": frame,
+            "steps": self.history[-1]["steps"] if last_good else self.steps,
+            "dt": self.dt,
+            "substeps": self.substeps,
+            "history": [h for h in self.history if h["frame"] <= frame],
+            "scene": self.scene.name,
+        }
+        return arrays, meta
+
+    def load_state_dict(self, arrays: dict[str, np.ndarray], meta: dict) -> None:
+        missing = [k for k in DYNAMIC + STATIC if k not in arrays]
+        if missing:
+            raise AbmpmError(f"checkpoint lacks particle fields: {', '.join(missing)}")
+        self._load_arrays({k: arrays[k] for k in DYNAMIC + STATIC})
+        self.frame = int(meta["frame"])
+        self.steps = int(meta["steps"])
+        self.substep = 0
+        self.dt = float(meta["dt"])
+        self.substeps = int(meta["substeps"])
+        self.history = list(meta["history"])
+        self._last_good = self._state.numpy()
