@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from abmpm.errors import MeshError, SceneError
 from abmpm.geometry import (
     bunny_ellipsoids,
+    bunny_mesh,
     ellipsoids_bounds,
     euler_matrix,
     lattice,
@@ -214,3 +215,17 @@ def test_bunny_height_and_connectivity():
     occupancy[tuple((idx - idx.min(axis=0)).T)] = True
     _, components = ndimage.label(occupancy)  # face-connected components
     assert components == 1
+
+
+def test_bunny_mesh_spans_the_bunny():
+    mesh = bunny_mesh((0.5, 0.4, 0.5), 0.3, subdivisions=2)
+    lo, hi = ellipsoids_bounds(bunny_ellipsoids((0.5, 0.4, 0.5), 0.3))
+    # Icosphere vertices lie on the ellipsoids, so the mesh box is inside the exact box
+    # and close to it (manifold3d works in float32, hence the 1e-6).
+    assert np.all(mesh.bounds[0] >= lo - 1e-6) and np.all(mesh.bounds[1] <= hi + 1e-6)
+    np.testing.assert_allclose(mesh.bounds, [lo, hi], atol=0.02 * 0.3)
+    try:
+        import manifold3d  # noqa: F401
+    except ImportError:
+        return  # concatenated parts: display only, not a closed surface
+    assert mesh.is_watertight and mesh.body_count == 1

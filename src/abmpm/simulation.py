@@ -61,12 +61,18 @@ class Particles:
     volume: np.ndarray
     material: np.ndarray
     level: np.ndarray
+    id: np.ndarray
     C: np.ndarray
     F: np.ndarray
     plastic: np.ndarray
 
     def __len__(self) -> int:
         return len(self.x)
+
+    def by_id(self) -> "Particles":
+        """The same particles ordered by their stable id (the solver reorders them)."""
+        order = np.argsort(self.id, kind="stable")
+        return Particles(**{k: getattr(self, k)[order] for k in self.__dataclass_fields__})
 
 
 def skew(w) -> np.ndarray:
@@ -234,14 +240,16 @@ class Simulation:
         return d
 
     def set_particles(self, **arrays: np.ndarray) -> None:
-        """Overwrite per-particle fields (e.g. ``v=...``) of the current state."""
+        """Overwrite per-particle fields (e.g. ``v=...``), given in particle-id order
+        (the order of ``particles().by_id()``)."""
         current = self._state.numpy()
+        slot = np.argsort(current["id"], kind="stable")  # slot[id] = index in the state
         for k, a in arrays.items():
-            if k not in current:
-                raise KeyError(f"unknown particle field {k!r}")
+            if k not in current or k == "id":
+                raise KeyError(f"unknown or read-only particle field {k!r}")
             if np.shape(a) != current[k].shape:
                 raise ValueError(f"{k}: expected shape {current[k].shape}, got {np.shape(a)}")
-            current[k] = np.asarray(a, dtype=current[k].dtype)
+            current[k][slot] = np.asarray(a, dtype=current[k].dtype)
         self._load_arrays(current)
 
     # ------------------------------------------------------------------ checkpoints

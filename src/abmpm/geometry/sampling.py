@@ -26,9 +26,9 @@ import numpy as np
 from abmpm.errors import SceneError
 from abmpm.geometry.meshes import load_mesh, require_closed, transform_mesh
 from abmpm.geometry.shapes import (
+    bunny_ellipsoids,
     ellipsoid_half_extent,
     ellipsoids_bounds,
-    bunny_ellipsoids,
     inside_ellipsoids,
 )
 from abmpm.geometry.transforms import euler_matrix
@@ -115,8 +115,10 @@ def _sphere(body, resolve, where):
 
 
 def _ellipsoid(body, resolve, where):
-    ell = [(np.asarray(body.center, dtype=np.float64), np.asarray(body.radii, dtype=np.float64), euler_matrix(body.rotation))]
-    c, r, R = ell[0]
+    c = np.asarray(body.center, dtype=np.float64)
+    r = np.asarray(body.radii, dtype=np.float64)
+    R = euler_matrix(body.rotation)
+    ell = [(c, r, R)]
     half = ellipsoid_half_extent(r, R)
     return c - half, c + half, lambda p: inside_ellipsoids(p, ell)
 

@@ -206,6 +206,7 @@ class Output(_Strict):
 
 class Scene(_Strict):
     name: str = "scene"
+    description: str = Field("", description="one line shown by `abmpm scenes`")
     simulation: SimulationSettings = SimulationSettings()
     materials: list[Material] = Field(min_length=1)
     bodies: list[Body] = Field(min_length=1)

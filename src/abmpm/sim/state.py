@@ -14,7 +14,7 @@ import numpy as np
 import warp as wp
 
 DYNAMIC = ("x", "v", "C", "F", "plastic")
-STATIC = ("mass", "volume", "material", "level")
+STATIC = ("mass", "volume", "material", "level", "id")
 DTYPES = {
     "x": wp.vec3,
     "v": wp.vec3,
@@ -25,6 +25,7 @@ DTYPES = {
     "volume": float,
     "material": wp.int32,
     "level": wp.int32,
+    "id": wp.int32,
 }
 
 
@@ -39,6 +40,7 @@ class ParticleState:
     volume: wp.array  # initial volume V0, m^3
     material: wp.array  # index into the scene's materials
     level: wp.array  # 0 original, 1 subdivided
+    id: wp.array  # stable particle identifier (order changes when particles are sorted)
 
     @property
     def count(self) -> int:
@@ -76,6 +78,8 @@ def _default(name: str, n: int) -> np.ndarray:
         return np.ones(n, dtype=np.float32)
     if name in ("material", "level"):
         return np.zeros(n, dtype=np.int32)
+    if name == "id":
+        return np.arange(n, dtype=np.int32)
     if name in ("C",):
         return np.zeros((n, 3, 3), dtype=np.float32)
     return np.zeros((n, 3), dtype=np.float32)

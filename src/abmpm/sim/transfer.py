@@ -103,12 +103,13 @@ def grid_update(
     if m > 0.0:
         vi = grid_mv[i, j, k] / m + dt * g.gravity
         xi = g.origin + wp.vec3(float(i), float(j), float(k)) * g.dx
+        tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
         for d in range(3):
-            if xi[d] <= g.domain_lo[d]:
+            if xi[d] <= g.domain_lo[d] + tol:
                 n = wp.vec3(0.0)
                 n[d] = 1.0
                 vi = wall_response(vi, n, g.wall_type, g.wall_friction)
-            if xi[d] >= g.domain_hi[d]:
+            if xi[d] >= g.domain_hi[d] - tol:
                 n = wp.vec3(0.0)
                 n[d] = -1.0
                 vi = wall_response(vi, n, g.wall_type, g.wall_friction)
@@ -153,10 +154,13 @@ def g2p(
     # Eq. 7, then the material's return mapping (Eqs. 13-14)
     mat = materials[material[p]]
     d = project_deformation(mat, (wp.identity(n=3, dtype=float) + dt * new_C) * F[p], plastic[p], dt)
-    # advect; particles never leave the domain box (last line of wall defence)
+    # advect. Nodes on and beyond the wall planes enforce the walls, so a particle
+    # can sink at most ~dx/2 into a wall before they stop it; the clamp one cell out
+    # is only a safety net that keeps stencils inside the grid. (Clamping at the
+    # plane itself would pile particles up there and silently compress material.)
     xn = xp + dt * new_v
     for a in range(3):
-        xn[a] = wp.clamp(xn[a], g.domain_lo[a], g.domain_hi[a])
+        xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
     x_out[p] = xn
     v_out[p] = new_v
     C_out[p] = new_C
