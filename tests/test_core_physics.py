@@ -155,3 +155,59 @@ def test_fluid_at_rest_reaches_hydrostatic_pressure():
     # at rest: over the averaging window no particle moved a tenth of a cell
     drift = np.linalg.norm(sim.particles().by_id().x - x_start, axis=1).max()
     assert drift < 0.1 * dx, drift
+
+
+# Martin & Moyce (1952), Phil. Trans. R. Soc. Lond. A 244, 312-324: surge front of a
+# collapsing water column (width a, height 2a) on a dry floor, tabulated run with
+# a = 2.25 in; Z = x_front / a from the wall, T = t sqrt(2 g / a).
+MARTIN_MOYCE_T_Z = np.array([
+    [0.41, 1.11], [0.84, 1.22], [1.19, 1.44], [1.43, 1.67], [1.63, 1.89], [1.83, 2.11],
+    [1.98, 2.33], [2.20, 2.56], [2.32, 2.78], [2.51, 3.00],
+])
+
+
+def test_dam_break_front_matches_martin_moyce():
+    a, dx = 0.1, 0.01  # resolution a/10: 10 x 20 cells in the column, slab 4 cells thick
+    sim = make_sim(
+        [Fluid(name="water", bulk_modulus=4e5)],  # c = 20 m/s, 10x the surge speed
+        [BoxBody(material="water", min=(0, 0, 0), max=(a, 2 * a, 4 * dx))],
+        domain_max=(0.5, 0.25, 4 * dx), dx=dx, fps=200, walls=abmpm.Walls(type="slip"),
+    )
+    scale = np.sqrt(2 * G / a)
+    T, Z = [0.0], [a / a]
+    while T[-1] < 2.6:
+        sim.advance(frames=1)
+        T.append(sim.time * scale)
+        Z.append(sim.particles().x[:, 0].max() / a)  # leading edge
+    Z_sim = np.interp(MARTIN_MOYCE_T_Z[:, 0], T, Z)
+    err = Z_sim / MARTIN_MOYCE_T_Z[:, 1] - 1.0
+    # 10% (the bound). Measured within 5.3% at a/10. At a/20 the front runs
+    # up to 11% ahead, as published simulations commonly do against this
+    # experiment (the gate release delays the real surge); see docs/validation.md.
+    assert np.abs(err).max() < 0.10, np.round(err, 3)
+
+
+@pytest.mark.parametrize("friction_angle", [20.0, 30.0, 40.0])
+def test_granular_column_collapse_slope_follows_friction_angle(friction_angle):
+    dx, H0 = 0.01, 0.1
+    walls = abmpm.Walls(type="slip", y_min={"type": "sticky"})  # rough floor, smooth side walls
+    sim = make_sim(
+        [abmpm.Sand(name="sand", density=1600, youngs_modulus=1e5, poisson_ratio=0.3,
+                    friction_angle=friction_angle)],
+        [BoxBody(material="sand", min=(0, 0, 0), max=(H0, H0, 4 * dx))],
+        domain_max=(0.5, H0 + 0.02, 4 * dx), dx=dx, fps=25, walls=walls,
+    )
+    sim.advance(seconds=0.6)  # collapse is over by ~0.3 s
+    assert sim.diagnostics()["max_speed"] < 0.02  # at rest
+    x = sim.particles().x
+    edges = np.arange(0.0, x[:, 0].max() + dx, dx)
+    col = np.digitize(x[:, 0], edges) - 1
+    height = np.array([x[col == i, 1].max() if (col == i).any() else 0.0 for i in range(len(edges) - 1)])
+    centre = edges[:-1] + dx / 2
+    # straight part of the slope: between 20% and 80% of the pile height, downhill side
+    on_slope = (height > 0.2 * height.max()) & (height < 0.8 * height.max()) & (centre > centre[np.argmax(height)])
+    slope = -np.polyfit(centre[on_slope], height[on_slope], 1)[0]
+    angle = np.degrees(np.arctan(slope))
+    # 4 degrees (the bound): a cohesionless Drucker-Prager pile settles at
+    # its friction angle; measured 1.5-2.5 degrees below it at this resolution.
+    assert abs(angle - friction_angle) < 4.0, angle

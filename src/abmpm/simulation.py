@@ -17,7 +17,7 @@ import warp as wp
 
 from .errors import AbmpmError, SimulationBlowUp
 from .geometry.sampling import particle_volume, sample_body
-from .scene.model import Scene
+from .scene.model import FACES, Scene
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import material_params, wave_speed
 from .sim.solver import MPMSolver, SolverConfig
@@ -123,7 +123,7 @@ class Simulation:
         self.solver = MPMSolver(
             SolverConfig(
                 domain_lo=st.domain_min, domain_hi=st.domain_max, dx=st.dx, gravity=st.gravity,
-                wall_type=st.walls.type, wall_friction=st.walls.friction,
+                walls={f: st.walls.face(f) for f in FACES},
             ),
             [material_params(m) for m in scene.materials],
             self.device,

@@ -26,11 +26,36 @@ class _Strict(BaseModel):
 # --------------------------------------------------------------------------- simulation
 
 
-class Walls(_Strict):
-    """Boundary condition on the six faces of the domain box."""
+WallType = Literal["sticky", "slip", "separate"]
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
-    type: Literal["sticky", "slip", "separate"] = "separate"
+
+class WallFace(_Strict):
+    type: WallType | None = None
+    friction: float | None = Field(None, ge=0)
+
+
+class Walls(_Strict):
+    """Boundary condition on the six faces of the domain box.
+
+    ``type`` and ``friction`` apply to every face; a face table (``x_min`` ...
+    ``z_max``) overrides them for that face, e.g. a rough floor (``y_min``) in a
+    tank with slippery side walls.
+    """
+
+    type: WallType = "separate"
     friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient (slip/separate walls)")
+    x_min: WallFace | None = None
+    x_max: WallFace | None = None
+    y_min: WallFace | None = None
+    y_max: WallFace | None = None
+    z_min: WallFace | None = None
+    z_max: WallFace | None = None
+
+    def face(self, name: str) -> tuple[str, float]:
+        """(type, friction) in force on one face."""
+        f = getattr(self, name) or WallFace()
+        return (f.type or self.type, self.friction if f.friction is None else f.friction)
 
 
 class SimulationSettings(_Strict):

@@ -32,8 +32,10 @@ class GridSpec:
     dims: wp.vec3i  # node counts per axis
     domain_lo: wp.vec3  # wall planes
     domain_hi: wp.vec3
-    wall_type: int
-    wall_friction: float
+    wall_type_lo: wp.vec3i  # per axis: type of the wall at domain_lo / domain_hi
+    wall_type_hi: wp.vec3i
+    friction_lo: wp.vec3  # Coulomb friction coefficients, same layout
+    friction_hi: wp.vec3
     gravity: wp.vec3
 
 
@@ -55,7 +57,9 @@ class Grid:
         return float(self.spec.dx)
 
     @staticmethod
-    def dense(domain_lo, domain_hi, dx: float, level: int, gravity, wall_type: str, wall_friction: float, device):
+    def dense(domain_lo, domain_hi, dx: float, level: int, gravity, walls: dict, device):
+        """Dense grid over the domain; ``walls`` maps face names ('x_min', ...) to
+        (type, friction)."""
         lo = np.asarray(domain_lo, dtype=np.float64)
         hi = np.asarray(domain_hi, dtype=np.float64)
         cells = np.ceil((hi - lo) / dx - 1e-9).astype(int)
@@ -67,8 +71,10 @@ class Grid:
         spec.dims = wp.vec3i(*dims)
         spec.domain_lo = wp.vec3(*lo)
         spec.domain_hi = wp.vec3(*hi)
-        spec.wall_type = WALL_IDS[wall_type]
-        spec.wall_friction = float(wall_friction)
+        spec.wall_type_lo = wp.vec3i(*[WALL_IDS[walls[f"{a}_min"][0]] for a in "xyz"])
+        spec.wall_type_hi = wp.vec3i(*[WALL_IDS[walls[f"{a}_max"][0]] for a in "xyz"])
+        spec.friction_lo = wp.vec3(*[float(walls[f"{a}_min"][1]) for a in "xyz"])
+        spec.friction_hi = wp.vec3(*[float(walls[f"{a}_max"][1]) for a in "xyz"])
         spec.gravity = wp.vec3(*gravity)
         return Grid(
             spec=spec,

@@ -14,6 +14,7 @@ from typing import Any
 import warp as wp
 
 from . import transfer
+from ..scene.model import FACES
 from .grid import Grid
 from .materials import MaterialParams
 from .state import DYNAMIC, STATIC, ParticleState
@@ -25,8 +26,8 @@ class SolverConfig:
     domain_hi: tuple[float, float, float]
     dx: float
     gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    wall_type: str = "separate"
-    wall_friction: float = 0.0
+    # face name ('x_min' ... 'z_max') -> (wall type, friction); missing faces: separate, 0
+    walls: dict | None = None
 
 
 class MPMSolver:
@@ -36,7 +37,7 @@ class MPMSolver:
         self.materials = wp.array(materials, dtype=MaterialParams, device=device)
         self.grid = Grid.dense(
             config.domain_lo, config.domain_hi, config.dx, 0, config.gravity,
-            config.wall_type, config.wall_friction, device,
+            {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}, device,
         )
 
     def step(self, state_in: ParticleState, state_out: ParticleState, dt: float) -> None:

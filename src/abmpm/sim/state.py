@@ -62,7 +62,14 @@ class ParticleState:
         return ParticleState(**kw)
 
     def numpy(self) -> dict[str, np.ndarray]:
-        return {f.name: getattr(self, f.name).numpy() for f in fields(self)}
+        # On the CPU, wp.array.numpy() is a zero-copy view that the next step overwrites
+        # (double buffering); snapshots must be copies on every device.
+        out = {}
+        for f in fields(self):
+            arr = getattr(self, f.name)
+            a = arr.numpy()
+            out[f.name] = a.copy() if arr.device.is_cpu else a
+        return out
 
     def twin(self) -> "ParticleState":
         """A second state for double buffering: own dynamic arrays, shared constants."""

@@ -108,11 +108,11 @@ def grid_update(
             if xi[d] <= g.domain_lo[d] + tol:
                 n = wp.vec3(0.0)
                 n[d] = 1.0
-                vi = wall_response(vi, n, g.wall_type, g.wall_friction)
+                vi = wall_response(vi, n, g.wall_type_lo[d], g.friction_lo[d])
             if xi[d] >= g.domain_hi[d] - tol:
                 n = wp.vec3(0.0)
                 n[d] = -1.0
-                vi = wall_response(vi, n, g.wall_type, g.wall_friction)
+                vi = wall_response(vi, n, g.wall_type_hi[d], g.friction_hi[d])
     grid_v[i, j, k] = vi
     grid_mv[i, j, k] = wp.vec3(0.0)
     grid_m[i, j, k] = 0.0

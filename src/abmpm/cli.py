@@ -1,0 +1,265 @@
+"""The ``abmpm`` command line.
+
+    abmpm run SCENE [--out DIR] [--device cpu|cuda] [--frames N] [--resume] [--no-preview]
+    abmpm scenes                 built-in scenes
+    abmpm info                   versions and devices
+    abmpm render DIR             re-render the preview of a finished run
+    abmpm bench                  performance benchmark
+
+User errors (a bad scene key, a missing mesh, an unwritable folder, a blow-up)
+print one line ``error: <message>`` on stderr and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
+
+EXIT_OK = 0
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def _quiet_warp() -> None:
+    """Keep Warp's start-up and module-load chatter off the terminal."""
+    if os.environ.get("ABMPM_VERBOSE"):
+        return
+    try:
+        import warp as wp
+    except ImportError:  # pragma: no cover
+        return
+    level = getattr(wp, "LOG_WARNING", None)
+    if level is not None and hasattr(wp.config, "log_level"):
+        wp.config.log_level = max(wp.config.log_level, level)
+    wp.config.quiet = True  # older Warp versions
+    # Warp's native code prints "could not load the CUDA driver" on every start on a
+    # machine without a GPU; `abmpm info` says the same thing in plain words.
+    from abmpm.simulation import init_warp
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            try:
+                init_warp()
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
+def _stdout():
+    from rich.console import Console
+
+    return Console(highlight=False)
+
+
+def _stderr():
+    from rich.console import Console
+
+    return Console(stderr=True, highlight=False)
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def _cmd_run(args) -> int:
+    from abmpm.runner import run
+    from abmpm.scene.loader import load_scene
+
+    scene = load_scene(args.scene)
+    out = Path(args.out) if args.out else Path("out") / scene.name
+    con = _stderr()
+    label = args.scene if os.path.exists(args.scene) else f"{args.scene} (built-in)"
+    if not args.quiet:
+        con.print(f"[bold]abmpm[/bold] running [cyan]{label}[/cyan] -> {out}")
+    try:
+        summary = run(
+            scene, out, device=args.device, frames=args.frames, resume=args.resume,
+            preview=not args.no_preview, progress=not args.quiet, console=con,
+        )
+    except KeyboardInterrupt:
+        print(f"\ninterrupted; continue with: abmpm run {args.scene} --out {out} --resume", file=sys.stderr)
+        raise
+    except SimulationBlowUp as exc:
+        raise SimulationBlowUp(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
+    except SceneError as exc:
+        # errors found while building the particles (body outside the domain, ...)
+        # name the key; add the scene file when they do not name it already
+        msg = str(exc)
+        if os.path.exists(args.scene) and not msg.startswith(args.scene):
+            raise SceneError(f"{args.scene}: {msg}") from None
+        raise
+    if not args.quiet:
+        _print_summary(summary, out)
+    return EXIT_OK
+
+
+def _print_summary(s: dict, out: Path) -> None:
+    con = _stdout()
+    sps = s.get("steps_per_second")
+    con.print(
+        f"[green]done[/green]: {s['scene']}: {s['particle_count']:,} particles, {s['frames']} frames "
+        f"({s['sim_time']:.2f} s simulated), {s['steps']:,} steps"
+        + (f" at {sps:,.0f} steps/s" if sps else "")
+        + f" on {s['device']} in {s['wall_seconds']:.1f} s"
+    )
+    outputs = s.get("outputs", {})
+    for key in ("preview", "poster", "energy_plot", "frames", "checkpoints", "usd", "summary"):
+        if key in outputs:
+            con.print(f"  {key:<12} {out / outputs[key]}")
+
+
+def _cmd_scenes(args) -> int:
+    from rich.table import Table
+
+    from abmpm.scene.loader import list_builtin_scenes, load_scene
+
+    table = Table(title="built-in scenes (abmpm run NAME)")
+    table.add_column("name", style="cyan", no_wrap=True)
+    table.add_column("materials")
+    table.add_column("duration", justify="right", no_wrap=True)
+    table.add_column("description")
+    for name, desc in list_builtin_scenes().items():
+        try:
+            sc = load_scene(name)
+            mats = ", ".join(sorted({m.model for m in sc.materials}))
+            table.add_row(name, mats, f"{sc.simulation.duration:g} s", desc)
+        except AbmpmError as exc:  # a broken built-in must not hide the others
+            table.add_row(name, "?", "?", f"[red]{exc}[/red]")
+    _stdout().print(table)
+    return EXIT_OK
+
+
+def _cmd_info(args) -> int:
+    import platform
+
+    import numpy as np
+
+    import abmpm
+
+    con = _stdout()
+    con.print(f"abmpm   {getattr(abmpm, '__version__', '?')}")
+    con.print(f"python  {platform.python_version()} ({sys.executable})")
+    con.print(f"numpy   {np.__version__}")
+    try:
+        import warp as wp
+
+        from abmpm.simulation import init_warp
+
+        init_warp()
+        con.print(f"warp    {wp.config.version}")
+        con.print("devices:")
+        for d in wp.get_devices():
+            extra = ""
+            if d.is_cuda:
+                mem = getattr(d, "total_memory", 0) or 0
+                extra = f"  {getattr(d, 'name', '')}  {mem / 2**30:.1f} GiB" if mem else f"  {getattr(d, 'name', '')}"
+            con.print(f"  {d.alias:<8}{extra}")
+        if wp.get_cuda_device_count() == 0:
+            con.print("  (no CUDA device: runs use the CPU)")
+        con.print(f"kernel cache  {wp.config.kernel_cache_dir}")
+    except Exception as exc:  # info must work even when Warp is broken
+        con.print(f"warp    unavailable ({type(exc).__name__}: {exc})")
+    for mod, label in (("pxr", "usd-core"), ("imageio_ffmpeg", "imageio-ffmpeg")):
+        import importlib.util
+
+        con.print(f"{label:<15} {'installed' if importlib.util.find_spec(mod) else 'not installed'}")
+    return EXIT_OK
+
+
+def _cmd_render(args) -> int:
+    from abmpm.runner import render_folder
+
+    info = render_folder(args.dir, progress=not args.quiet)
+    if not args.quiet:
+        _stdout().print(f"[green]rendered[/green] {info['frames']} frames -> {info['preview']}, {info['poster']}")
+    return EXIT_OK
+
+
+def _cmd_bench(args) -> int:
+    import importlib
+
+    try:
+        bench = importlib.import_module("abmpm.bench")
+        run_bench = bench.run_bench
+    except (ImportError, AttributeError):
+        print("error: the benchmark is not available in this version of abmpm "
+              "(abmpm.bench.run_bench is missing)", file=sys.stderr)
+        return EXIT_ERROR
+    result = run_bench(args.bench_args) if args.bench_args else run_bench()
+    return result if isinstance(result, int) else EXIT_OK
+
+
+# --------------------------------------------------------------------------- parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="abmpm",
+        description="Adaptive boundary MLS-MPM simulator (NVIDIA Warp, CPU and CUDA).",
+    )
+    try:
+        from abmpm import __version__
+    except ImportError:  # pragma: no cover
+        __version__ = "?"
+    p.add_argument("--version", action="version", version=f"abmpm {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("run", help="run a scene (a .toml file or a built-in name)")
+    r.add_argument("scene", metavar="SCENE", help="scene file (.toml) or built-in name (see `abmpm scenes`)")
+    r.add_argument("--out", "-o", metavar="DIR", help="output folder (default: out/<scene name>/)")
+    r.add_argument("--device", "-d", metavar="DEVICE",
+                   help="cpu, cuda or cuda:N (default: the scene's, else cuda when available)")
+    r.add_argument("--frames", "-n", type=int, metavar="N", help="number of frames (default: duration * fps)")
+    r.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in the output folder")
+    r.add_argument("--no-preview", action="store_true", help="do not render preview.mp4 / preview.png")
+    r.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+    r.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("scenes", help="list the built-in scenes")
+    s.set_defaults(func=_cmd_scenes)
+
+    i = sub.add_parser("info", help="versions and available devices")
+    i.set_defaults(func=_cmd_info)
+
+    d = sub.add_parser("render", help="re-render the preview of a run from its frames")
+    d.add_argument("dir", metavar="DIR", help="output folder of a run")
+    d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    d.set_defaults(func=_cmd_render)
+
+    b = sub.add_parser("bench", help="performance benchmark")
+    b.add_argument("bench_args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
+    b.set_defaults(func=_cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``abmpm``; returns the exit status (0 ok, 2 error, 130 interrupted)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
+    _quiet_warp()
+    try:
+        return args.func(args)
+    except AbmpmError as exc:
+        lines = str(exc).splitlines() or [type(exc).__name__]
+        print(f"error: {lines[0]}", file=sys.stderr)
+        for line in lines[1:]:
+            print(f"error: {line}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

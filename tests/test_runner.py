@@ -1,0 +1,236 @@
+"""The runner: output files, PLY contents, resume bit-identity, preview, blow-ups."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from abmpm.cli import main
+from abmpm.errors import OutputError, SimulationBlowUp
+from abmpm.io import load_checkpoint, read_particles_ply
+from abmpm.runner import render_folder, run
+from abmpm.scene.model import (
+    BoxBody,
+    Elastic,
+    Fluid,
+    Output,
+    Scene,
+    SimulationSettings,
+    SphereBody,
+)
+from abmpm.simulation import Simulation
+
+
+def tiny_scene(**output) -> Scene:
+    """Water and a jelly ball, ~700 particles on an 8^3 grid: a frame takes ~0.1 s."""
+    return Scene(
+        name="tiny",
+        simulation=SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.05, duration=0.2),
+        materials=[Fluid(name="water"), Elastic(name="jelly", youngs_modulus=1.0e4)],
+        bodies=[
+            BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.15, 0.2, 0.4)),
+            SphereBody(material="jelly", center=(0.28, 0.25, 0.2), radius=0.07),
+        ],
+        output=Output(**output),
+    )
+
+
+def quiet_run(scene, out, **kw):
+    kw.setdefault("device", "cpu")
+    kw.setdefault("progress", False)
+    return run(scene, out, **kw)
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """One 4-frame run shared by the read-only tests."""
+    out = tmp_path_factory.mktemp("run") / "tiny"
+    summary = quiet_run(tiny_scene(checkpoint_every=2), out, frames=4)
+    return out, summary
+
+
+def test_outputs_written(finished):
+    out, summary = finished
+    for name in ("scene.json", "summary.json", "energy.png", "preview.mp4", "preview.png"):
+        assert (out / name).is_file(), name
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"frame_{i:05d}.ply" for i in range(5)]
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "checkpoint_00002.npz", "checkpoint_00004.npz"
+    ]
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk["status"] == summary["status"] == "completed"
+    assert on_disk["scene"] == "tiny"
+    assert on_disk["frames"] == 4 and on_disk["device"] == "cpu"
+    assert on_disk["particle_count"] == summary["particle_count"] > 0
+    assert on_disk["steps"] > 0 and on_disk["steps_per_second"] > 0 and on_disk["wall_seconds"] > 0
+    series = on_disk["series"]
+    for key in ("time", "kinetic_energy", "total_mass", "momentum", "max_speed", "count_per_level"):
+        assert len(series[key]) == 5, key
+    assert series["time"][0] == 0.0 and series["time"][-1] == pytest.approx(4 / 30)
+    assert np.allclose(series["total_mass"], series["total_mass"][0], rtol=1e-6)
+
+
+def test_ply_frames_match_the_simulation(finished):
+    out, summary = finished
+    sim = Simulation(tiny_scene(), device="cpu")
+    p0 = sim.particles().by_id()
+    f0 = read_particles_ply(out / "frames" / "frame_00000.ply")
+    np.testing.assert_array_equal(f0["x"], p0.x)
+    sim.advance(frames=2)
+    p = sim.particles().by_id()
+    f = read_particles_ply(out / "frames" / "frame_00002.ply")
+    np.testing.assert_array_equal(f["x"], p.x)
+    np.testing.assert_array_equal(f["v"], p.v)
+    np.testing.assert_array_equal(f["material"], p.material)
+    np.testing.assert_array_equal(f["level"], p.level)
+    np.testing.assert_array_equal(f["mass"], p.mass)
+    np.testing.assert_allclose(f["speed"], np.linalg.norm(p.v, axis=1), rtol=1e-6)
+
+
+def test_preview_decodes_with_one_frame_per_ply(finished):
+    import imageio.v2 as imageio
+
+    out, summary = finished
+    reader = imageio.get_reader(str(out / "preview.mp4"), format="FFMPEG")
+    try:
+        frames = [f for f in reader]
+    finally:
+        reader.close()
+    assert len(frames) == 5 == summary["preview_frames"]
+    assert frames[0].shape == (480, 640, 3)
+    poster = imageio.imread(out / "preview.png")
+    assert poster.shape == (480, 640, 3) and poster.std() > 5  # not a blank image
+
+
+def test_render_folder_rerenders(finished, tmp_path):
+    out, _ = finished
+    before = (out / "preview.mp4").stat().st_mtime_ns
+    info = render_folder(out)
+    assert info["frames"] == 5
+    assert (out / "preview.mp4").stat().st_mtime_ns >= before
+
+
+def test_resume_is_bit_identical(tmp_path):
+    scene = tiny_scene(checkpoint_every=10)
+    straight = tmp_path / "straight"
+    split = tmp_path / "split"
+    quiet_run(scene, straight, frames=4)
+    first = quiet_run(scene, split, frames=2, preview=False)
+    assert first["frames"] == 2
+    assert sorted(p.name for p in (split / "checkpoints").iterdir()) == ["checkpoint_00002.npz"]
+    resumed = quiet_run(scene, split, frames=4, resume=True)
+    assert resumed["resumed_from_frame"] == 2 and resumed["status"] == "completed"
+
+    for frame in range(5):
+        a = read_particles_ply(straight / "frames" / f"frame_{frame:05d}.ply")
+        b = read_particles_ply(split / "frames" / f"frame_{frame:05d}.ply")
+        assert a.keys() == b.keys()
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k], err_msg=f"frame {frame} {k}")
+    ca, ma = load_checkpoint(straight / "checkpoints" / "checkpoint_00004.npz")
+    cb, mb = load_checkpoint(split / "checkpoints" / "checkpoint_00004.npz")
+    assert ca.keys() == cb.keys()
+    for k in ca:
+        np.testing.assert_array_equal(ca[k], cb[k], err_msg=k)
+    assert (ma["frame"], ma["steps"], ma["dt"], ma["substeps"]) == (mb["frame"], mb["steps"], mb["dt"], mb["substeps"])
+    sa = json.loads((straight / "summary.json").read_text())["series"]
+    sb = json.loads((split / "summary.json").read_text())["series"]
+    assert sa == sb
+
+
+def test_resume_refuses_a_changed_scene(tmp_path):
+    quiet_run(tiny_scene(), tmp_path / "out", frames=1, preview=False)
+    changed = tiny_scene()
+    changed = changed.model_copy(
+        update={"simulation": changed.simulation.model_copy(update={"gravity": (0.0, -1.0, 0.0)})}
+    )
+    with pytest.raises(OutputError, match="simulation.gravity"):
+        quiet_run(changed, tmp_path / "out", frames=2, resume=True)
+
+
+def test_frames_off_still_previews_and_usd(tmp_path):
+    pytest.importorskip("pxr")
+    out = tmp_path / "out"
+    summary = quiet_run(tiny_scene(frames=False, usd=True, color_by="speed"), out, frames=2)
+    assert not (out / "frames").exists() or not any((out / "frames").iterdir())
+    assert summary["preview_frames"] == 3
+    assert (out / "particles.usd").is_file()
+    assert summary["outputs"]["usd"] == "particles.usd"
+
+
+def _explode_after_frame(monkeypatch, frame: int) -> None:
+    """Make the run blow up: after `frame` every particle's velocity becomes NaN."""
+    original = Simulation.advance
+
+    def advance(self, seconds=None, frames=None, callback=None):
+        def poisoned(sim):
+            if callback is not None:
+                callback(sim)
+            if sim.frame == frame:
+                v = np.full((sim.particle_count, 3), np.nan, dtype=np.float32)
+                sim.set_particles(v=v)
+
+        return original(self, seconds=seconds, frames=frames, callback=poisoned)
+
+    monkeypatch.setattr(Simulation, "advance", advance)
+
+
+def test_blow_up_keeps_frames_checkpoint_and_summary(tmp_path, monkeypatch):
+    _explode_after_frame(monkeypatch, 2)
+    out = tmp_path / "out"
+    with pytest.raises(SimulationBlowUp, match="blew up"):
+        quiet_run(tiny_scene(), out, frames=5)
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"frame_{i:05d}.ply" for i in range(3)]
+    assert [p.name for p in (out / "checkpoints").iterdir()] == ["checkpoint_00002.npz"]
+    arrays, meta = load_checkpoint(out / "checkpoints" / "checkpoint_00002.npz")
+    assert meta["frame"] == 2 and np.isfinite(arrays["v"]).all() and np.isfinite(arrays["x"]).all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "blew_up"
+    assert "blew up" in summary["message"] and "last good frame is 2" in summary["message"]
+    assert summary["frames"] == 2 and len(summary["series"]["time"]) == 3
+    assert (out / "preview.mp4").is_file()  # what happened up to the blow-up
+
+
+def test_blow_up_cli_exit_code(tmp_path, monkeypatch, capsys):
+    _explode_after_frame(monkeypatch, 1)
+    path = tmp_path / "tiny.toml"
+    path.write_text(
+        """
+[simulation]
+domain_max = [0.4, 0.4, 0.4]
+dx = 0.05
+[[materials]]
+name = "water"
+model = "fluid"
+[[bodies]]
+shape = "box"
+material = "water"
+min = [0.0, 0.0, 0.0]
+max = [0.15, 0.2, 0.4]
+"""
+    )
+    out = tmp_path / "out"
+    code = main(["run", str(path), "--out", str(out), "--frames", "3", "--no-preview", "-q"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "Traceback" not in err
+    assert err.startswith("error: simulation blew up") and str(out) in err
+    assert json.loads((out / "summary.json").read_text())["status"] == "blew_up"
+
+
+def test_cli_run_default_out(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tiny.toml").write_text(
+        '[simulation]\ndomain_max = [0.4, 0.4, 0.4]\ndx = 0.05\n'
+        '[[materials]]\nname = "water"\nmodel = "fluid"\n'
+        '[[bodies]]\nshape = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.15, 0.2, 0.4]\n'
+    )
+    code = main(["run", "tiny.toml", "--frames", "1", "--device", "cpu", "--no-preview"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "done" in captured.out
+    out = tmp_path / "out" / "tiny"
+    assert (out / "summary.json").is_file() and (out / "frames" / "frame_00001.ply").is_file()
+    assert not (out / "preview.mp4").exists()
