@@ -135,7 +135,7 @@ class Simulation:
         self.steps = 0
         self.history: list[dict] = []
         self._choose_dt(float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()))
-        self.solver.sort_by_cell(self._state, self._next)
+        self.solver.sort_by_cell(self._state)
         self._last_good = self._state.numpy()
         self.history.append(self._diagnostics(self._last_good))
 
@@ -143,7 +143,6 @@ class Simulation:
 
     def _load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         self._state = ParticleState.from_numpy(arrays, self.device)
-        self._next = self._state.twin()
 
     def _choose_dt(self, max_speed: float) -> None:
         """CFL on the grid spacing with the wave speed plus the fastest particle, capped
@@ -163,8 +162,7 @@ class Simulation:
 
     def step(self) -> None:
         """One substep of length ``self.dt``; frame bookkeeping when a frame completes."""
-        self.solver.step(self._state, self._next, self.dt)
-        self._state, self._next = self._next, self._state
+        self.solver.step(self._state, self._state, self.dt)
         self.steps += 1
         self.substep += 1
         if self.substep == self.substeps:
@@ -189,8 +187,7 @@ class Simulation:
 
     def _run_frame(self, callback) -> None:
         for _ in range(self.substeps - self.substep):
-            self.solver.step(self._state, self._next, self.dt)
-            self._state, self._next = self._next, self._state
+            self.solver.step(self._state, self._state, self.dt)
             self.steps += 1
         self.substep = self.substeps
         self._end_frame()
@@ -221,7 +218,7 @@ class Simulation:
         self.history.append(diag)
         self._choose_dt(diag["max_speed"])
         if self.frame % SORT_EVERY_FRAMES == 0:
-            self.solver.sort_by_cell(self._state, self._next)
+            self.solver.sort_by_cell(self._state)
 
     # ------------------------------------------------------------------ inspection
 

@@ -5,11 +5,11 @@ Two device functions dispatch on ``params.model``:
 
 * :func:`kirchhoff_stress` gives tau = P F^T = J sigma, used by the MLS-MPM force
   of paper Eq. 9 (f_i = -4/dx^2 V0 tau w_ip (x_i - x_p)).
-* :func:`project_deformation` applies the plastic / relaxation return mapping to
+* :func:`update_deformation` advances F by Eq. 7 and applies the plastic / relaxation return mapping to
   the trial deformation gradient after Eq. 7 (paper Eqs. 13-14) and updates the
   scalar plastic state (snow: J_P; sand: accumulated volumetric correction).
 
-To add a model: a new ``MODEL_*`` id, a branch in both functions, a branch in
+To add a model: a new ``MODEL_*`` id, a branch in both device functions, a branch in
 :func:`material_params` (scene parameters -> struct) and in :func:`wave_speed`.
 """
 
@@ -98,14 +98,34 @@ def pressure_from_J(bulk: float | np.ndarray, gamma: float, J):
 
 @wp.func
 def fluid_pressure(mat: MaterialParams, J: float):
-    # Tait equation of state, linearised: dp/dJ = -K at J = 1
-    return mat.bulk * (wp.pow(J, -mat.gamma) - 1.0) / mat.gamma
+    # Tait equation of state p = K (J^-gamma - 1) / gamma, so dp/dJ = -K at J = 1.
+    # Integer exponents (the usual 1 or 7) by multiplication: pow() would cost as
+    # much as a third of the whole P2G on the CPU.
+    n = int(mat.gamma)
+    inv_J = 1.0 / J
+    r = float(1.0)
+    if float(n) == mat.gamma:
+        for _ in range(n):
+            r = r * inv_J
+    else:
+        r = wp.pow(J, -mat.gamma)
+    return mat.bulk * (r - 1.0) / mat.gamma
 
 
 @wp.func
 def viscous_kirchhoff(eta: float, J: float, C: wp.mat33):
     # Newtonian viscous Cauchy stress eta (grad v + grad v^T), grad v ~ C (APIC)
+    if eta == 0.0:
+        return wp.mat33(0.0)
     return (eta * J) * (C + wp.transpose(C))
+
+
+@wp.func
+def fluid_J(F: wp.mat33):
+    # A fluid keeps no shear memory, only its volume ratio J. Its F is stored as
+    # diag(J, 1, 1): det(F) = J for any reader, and the step needs no SVD, no cube
+    # root and no 3x3 product for it.
+    return F[0, 0]
 
 
 @wp.func
@@ -141,7 +161,7 @@ def hencky_kirchhoff(mu: float, lam: float, F: wp.mat33):
 @wp.func
 def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float):
     if mat.model == MODEL_FLUID:
-        J = wp.determinant(F)
+        J = fluid_J(F)
         p = fluid_pressure(mat, J)
         return wp.identity(n=3, dtype=float) * (-p * J) + viscous_kirchhoff(mat.viscosity, J, C)
     if mat.model == MODEL_SAND:
@@ -221,15 +241,18 @@ def maxwell_relaxation(mat: MaterialParams, F: wp.mat33, dt: float):
 
 
 @wp.func
-def project_deformation(mat: MaterialParams, F_trial: wp.mat33, plastic: float, dt: float):
+def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float, dt: float):
+    """F <- (I + dt C) F (paper Eq. 7), then the model's return mapping (Eqs. 13-14)."""
     out = Deformation()
-    out.F = F_trial
     out.plastic = plastic
     if mat.model == MODEL_FLUID:
-        # a fluid keeps no shear memory: only J matters (isotropic F = J^(1/3) I)
-        J = wp.determinant(F_trial)
-        out.F = wp.identity(n=3, dtype=float) * wp.pow(wp.max(J, 1.0e-6), 1.0 / 3.0)
-    elif mat.model == MODEL_SAND:
+        # J <- det(I + dt C) J, the determinant of Eq. 7, stored as F = diag(J, 1, 1)
+        out.F = wp.identity(n=3, dtype=float)
+        out.F[0, 0] = wp.determinant(wp.identity(n=3, dtype=float) + dt * C) * fluid_J(F)
+        return out
+    F_trial = (wp.identity(n=3, dtype=float) + dt * C) * F
+    out.F = F_trial
+    if mat.model == MODEL_SAND:
         out = sand_return_mapping(mat, F_trial, plastic)
     elif mat.model == MODEL_SNOW:
         out = snow_return_mapping(mat, F_trial, plastic)

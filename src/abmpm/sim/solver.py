@@ -41,6 +41,8 @@ class MPMSolver:
         )
 
     def step(self, state_in: ParticleState, state_out: ParticleState, dt: float) -> None:
+        """Advance by dt. ``state_out`` may be ``state_in`` (in place): G2P reads and
+        writes only its own particle, after P2G has read them all."""
         g = self.grid
         n = state_in.count
         wp.launch(
@@ -59,21 +61,14 @@ class MPMSolver:
 
     # ------------------------------------------------------------------ sorting
 
-    def sort_by_cell(self, state: ParticleState, spare: ParticleState) -> None:
-        """Reorder particles by grid cell so P2G/G2P touch memory coherently.
-
-        Sorts in place on the device; ``spare`` (the double buffer) is scratch.
-        """
+    def sort_by_cell(self, state: ParticleState) -> None:
+        """Reorder particles by grid cell so P2G/G2P touch memory coherently (on the device)."""
         n = state.count
         keys = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         perm = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         wp.launch(_cell_keys, dim=n, inputs=[state.x, self.grid.spec], outputs=[keys, perm], device=self.device)
         wp.utils.radix_sort_pairs(keys, perm, n)
-        for name in DYNAMIC:
-            src, dst = getattr(state, name), getattr(spare, name)
-            wp.launch(_gather, dim=n, inputs=[src, perm], outputs=[dst], device=self.device)
-            wp.copy(src, dst)
-        for name in STATIC:  # shared by both states: permute through a temporary
+        for name in DYNAMIC + STATIC:
             src = getattr(state, name)
             tmp = wp.empty_like(src)
             wp.launch(_gather, dim=n, inputs=[src, perm], outputs=[tmp], device=self.device)

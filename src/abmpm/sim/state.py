@@ -2,8 +2,8 @@
 
 All particles of every level live in one set of arrays; ``level`` says which grid a
 particle belongs to (0 = original, 1 = subdivided). The solver's step reads one
-state and writes another (``step(state_in, state_out, dt)``); the per-particle
-constants (mass, volume, material, level) are shared by both.
+state and writes another (``step(state_in, state_out, dt)``, which may be the
+same object for an in-place step).
 """
 
 from __future__ import annotations
@@ -70,12 +70,6 @@ class ParticleState:
             a = arr.numpy()
             out[f.name] = a.copy() if arr.device.is_cpu else a
         return out
-
-    def twin(self) -> "ParticleState":
-        """A second state for double buffering: own dynamic arrays, shared constants."""
-        kw = {name: getattr(self, name) for name in STATIC}
-        kw.update({name: wp.empty_like(getattr(self, name)) for name in DYNAMIC})
-        return ParticleState(**kw)
 
 
 def _default(name: str, n: int) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import warp as wp
 
 from .grid import WALL_SEPARATE, WALL_STICKY, GridSpec
-from .materials import MaterialParams, kirchhoff_stress, project_deformation
+from .materials import MaterialParams, kirchhoff_stress, update_deformation
 
 
 @wp.func
@@ -152,8 +152,7 @@ def g2p(
     # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
     new_C = (4.0 * g.inv_dx * g.inv_dx) * B
     # Eq. 7, then the material's return mapping (Eqs. 13-14)
-    mat = materials[material[p]]
-    d = project_deformation(mat, (wp.identity(n=3, dtype=float) + dt * new_C) * F[p], plastic[p], dt)
+    d = update_deformation(materials[material[p]], F[p], new_C, plastic[p], dt)
     # advect. Nodes on and beyond the wall planes enforce the walls, so a particle
     # can sink at most ~dx/2 into a wall before they stop it; the clamp one cell out
     # is only a safety net that keeps stencils inside the grid. (Clamping at the
