@@ -18,6 +18,8 @@ import warp as wp
 from .errors import AbmpmError, SimulationBlowUp
 from .geometry.sampling import particle_volume, sample_body
 from .scene.model import FACES, Scene
+from .geometry.placement import collider_mesh
+from .sim.colliders import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import material_params, wave_speed
 from .sim.solver import MPMSolver, SolverConfig
@@ -118,6 +120,10 @@ class Simulation:
         self.device = choose_device(device if device is not None else st.device)
         self.frame_dt = 1.0 / st.fps
         self.dx = st.dx
+        colliders = None
+        if scene.colliders:
+            meshes = [collider_mesh(c, scene.resolve, f"colliders[{i}]") for i, c in enumerate(scene.colliders)]
+            colliders = ColliderSet(meshes, list(scene.colliders), self.device, cpic=st.cpic)
         used = {b.material for b in scene.bodies}
         self.wave_speed = max(wave_speed(m) for m in scene.materials if m.name in used)
         self.solver = MPMSolver(
@@ -127,6 +133,7 @@ class Simulation:
             ),
             [material_params(m) for m in scene.materials],
             self.device,
+            colliders,
         )
         arrays = sample_scene(scene)
         self._load_arrays(arrays)
@@ -136,6 +143,7 @@ class Simulation:
         self.history: list[dict] = []
         self._choose_dt(float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()))
         self.solver.sort_by_cell(self._state)
+        self.solver.colour_particles(self._state)
         self._last_good = self._state.numpy()
         self.history.append(self._diagnostics(self._last_good))
 
@@ -162,7 +170,7 @@ class Simulation:
 
     def step(self) -> None:
         """One substep of length ``self.dt``; frame bookkeeping when a frame completes."""
-        self.solver.step(self._state, self._state, self.dt)
+        self.solver.step(self._state, self._state, self.dt, self.time)
         self.steps += 1
         self.substep += 1
         if self.substep == self.substeps:
@@ -187,9 +195,9 @@ class Simulation:
 
     def _run_frame(self, callback) -> None:
         for _ in range(self.substeps - self.substep):
-            self.solver.step(self._state, self._state, self.dt)
+            self.solver.step(self._state, self._state, self.dt, self.time)
             self.steps += 1
-        self.substep = self.substeps
+            self.substep += 1
         self._end_frame()
         if callback is not None:
             callback(self)
@@ -228,7 +236,8 @@ class Simulation:
         return d
 
     def particles(self) -> Particles:
-        return Particles(**self._state.numpy())
+        arrays = self._state.numpy()
+        return Particles(**{k: arrays[k] for k in Particles.__dataclass_fields__})
 
     def diagnostics(self) -> dict:
         """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""

@@ -18,10 +18,7 @@ import warp as wp
 # its 3x3x3 quadratic B-spline stencil inside the grid.
 GRID_PAD = 3
 
-WALL_STICKY = wp.constant(0)
-WALL_SLIP = wp.constant(1)
-WALL_SEPARATE = wp.constant(2)
-WALL_IDS = {"sticky": 0, "slip": 1, "separate": 2}
+from .boundary import BOUNDARY_IDS as WALL_IDS
 
 
 @wp.struct
@@ -46,6 +43,7 @@ class Grid:
     mv: wp.array3d  # momentum during P2G
     m: wp.array3d  # mass
     v: wp.array3d  # velocity after the grid update (read by G2P)
+    colour: object = None  # ColourField of the colliders (CPIC), set by the solver
 
     @property
     def dims(self) -> tuple[int, int, int]:

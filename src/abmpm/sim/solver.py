@@ -1,9 +1,11 @@
 """The MLS-MPM step, in one place.
 
-``MPMSolver.step(state_in, state_out, dt)`` is the whole algorithm of a step on the
-uniform grid: P2G with MLS forces, grid update with walls, G2P with deformation
-update and return mapping, advection. Everything else (sampling, output,
-diagnostics, time stepping) lives outside.
+``MPMSolver.step(state_in, state_out, dt, time)`` is the whole algorithm of a step:
+move the colliders and rebuild their colour distance field, P2G with MLS forces
+(compatible nodes only), grid update with walls and collider contact, G2P with
+boundary velocities, deformation update and return mapping, advection without
+crossing a collider. Everything else (sampling, output, diagnostics, time
+stepping) lives outside.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import warp as wp
 
 from . import transfer
 from ..scene.model import FACES
+from .colliders import ColliderSet, colour_field, colour_particles, empty_spec
 from .grid import Grid
 from .materials import MaterialParams
 from .state import DYNAMIC, STATIC, ParticleState
@@ -31,7 +34,8 @@ class SolverConfig:
 
 
 class MPMSolver:
-    def __init__(self, config: SolverConfig, materials: list[MaterialParams], device):
+    def __init__(self, config: SolverConfig, materials: list[MaterialParams], device,
+                 colliders: ColliderSet | None = None):
         self.config = config
         self.device = device
         self.materials = wp.array(materials, dtype=MaterialParams, device=device)
@@ -39,24 +43,50 @@ class MPMSolver:
             config.domain_lo, config.domain_hi, config.dx, 0, config.gravity,
             {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}, device,
         )
+        self.colliders = colliders
+        if colliders is None:
+            self.collision = empty_spec(device)
+            self.grid.colour = colour_field((1, 1, 1), device)
+        else:
+            self.collision = colliders.spec
+            self.grid.colour = colour_field(self.grid.dims, device)
+            colliders.colour(self.grid, self.grid.colour)
 
-    def step(self, state_in: ParticleState, state_out: ParticleState, dt: float) -> None:
-        """Advance by dt. ``state_out`` may be ``state_in`` (in place): G2P reads and
-        writes only its own particle, after P2G has read them all."""
+    def move_colliders(self, time: float) -> None:
+        """Colliders to time t (Eq. 22 velocities), colour field rebuilt if they moved."""
+        c = self.colliders
+        if c is None or (c.static and c.time is not None):
+            return
+        c.set_time(time)
+        self.collision = c.spec
+        c.colour(self.grid, self.grid.colour)
+
+    def colour_particles(self, state: ParticleState) -> None:
+        """Initial CPIC colour of every particle (later steps update it in G2P)."""
+        if self.colliders is None:
+            return
         g = self.grid
-        n = state_in.count
+        wp.launch(colour_particles, dim=state.count, device=self.device,
+                  inputs=[state.x, self.collision, g.spec, g.colour], outputs=[state.cp, state.cn, state.cbody])
+
+    def step(self, state_in: ParticleState, state_out: ParticleState, dt: float, time: float = 0.0) -> None:
+        """Advance from ``time`` by dt. ``state_out`` may be ``state_in`` (in place): G2P
+        reads and writes only its own particle, after P2G has read them all."""
+        self.move_colliders(time)
+        g, s = self.grid, state_in
         wp.launch(
-            transfer.p2g, dim=n, device=self.device,
-            inputs=[state_in.x, state_in.v, state_in.C, state_in.F, state_in.plastic,
-                    state_in.mass, state_in.volume, state_in.material, self.materials,
-                    g.spec, dt, g.mv, g.m],
+            transfer.p2g, dim=s.count, device=self.device,
+            inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.cp, s.cn, s.cbody,
+                    self.materials, g.spec, g.colour, dt, g.mv, g.m],
         )
-        wp.launch(transfer.grid_update, dim=g.dims, device=self.device, inputs=[g.spec, dt, g.mv, g.m, g.v])
+        wp.launch(transfer.grid_update, dim=g.dims, device=self.device,
+                  inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v])
+        o = state_out
         wp.launch(
-            transfer.g2p, dim=n, device=self.device,
-            inputs=[state_in.x, state_in.F, state_in.plastic, state_in.material, self.materials,
-                    g.spec, dt, g.v],
-            outputs=[state_out.x, state_out.v, state_out.C, state_out.F, state_out.plastic],
+            transfer.g2p, dim=s.count, device=self.device,
+            inputs=[s.x, s.v, s.F, s.plastic, s.material, s.cp, s.cn, s.cbody, self.materials,
+                    g.spec, self.collision, g.colour, dt, g.v],
+            outputs=[o.x, o.v, o.C, o.F, o.plastic, o.cp, o.cn, o.cbody],
         )
 
     # ------------------------------------------------------------------ sorting

@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
-DYNAMIC = ("x", "v", "C", "F", "plastic")
+DYNAMIC = ("x", "v", "C", "F", "plastic", "cp", "cn", "cbody")
 STATIC = ("mass", "volume", "material", "level", "id")
 DTYPES = {
     "x": wp.vec3,
@@ -26,6 +26,9 @@ DTYPES = {
     "material": wp.int32,
     "level": wp.int32,
     "id": wp.int32,
+    "cp": wp.vec3,
+    "cn": wp.vec3,
+    "cbody": wp.int32,
 }
 
 
@@ -41,6 +44,11 @@ class ParticleState:
     material: wp.array  # index into the scene's materials
     level: wp.array  # 0 original, 1 subdivided
     id: wp.array  # stable particle identifier (order changes when particles are sorted)
+    # colour w.r.t. the nearest collider (CPIC): closest surface point, unit direction
+    # from it to the particle, and the collider index (-1 when far from all)
+    cp: wp.array
+    cn: wp.array
+    cbody: wp.array
 
     @property
     def count(self) -> int:
@@ -81,6 +89,8 @@ def _default(name: str, n: int) -> np.ndarray:
         return np.zeros(n, dtype=np.int32)
     if name == "id":
         return np.arange(n, dtype=np.int32)
+    if name == "cbody":
+        return np.full(n, -1, dtype=np.int32)
     if name in ("C",):
         return np.zeros((n, 3, 3), dtype=np.float32)
     return np.zeros((n, 3), dtype=np.float32)

@@ -8,7 +8,12 @@ from __future__ import annotations
 
 import warp as wp
 
-from .grid import WALL_SEPARATE, WALL_STICKY, GridSpec
+from .boundary import boundary_response
+from .colliders import (
+    CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatible, near_surface, node_contact,
+    stop_crossing,
+)
+from .grid import GridSpec
 from .materials import MaterialParams, kirchhoff_stress, update_deformation
 
 
@@ -44,14 +49,19 @@ def p2g(
     mass: wp.array(dtype=float),
     volume: wp.array(dtype=float),
     material: wp.array(dtype=wp.int32),
+    cp: wp.array(dtype=wp.vec3),
+    cn: wp.array(dtype=wp.vec3),
+    cbody: wp.array(dtype=wp.int32),
     materials: wp.array(dtype=MaterialParams),
     g: GridSpec,
+    colour: ColourField,
     dt: float,
     grid_mv: wp.array3d(dtype=wp.vec3),
     grid_m: wp.array3d(dtype=float),
 ):
     p = wp.tid()
     xp = x[p]
+    cb = cbody[p]
     base = stencil_base(g, xp)
     fx = stencil_offset(g, xp, base)
     w = bspline_weights(fx)
@@ -65,31 +75,20 @@ def p2g(
         for j in range(3):
             for k in range(3):
                 dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                if cb >= 0:
+                    # CPIC: scatter only to nodes on the particle's side of every collider
+                    if not compatible(cp[p], cn[p], cb, xp, colour, xp + dpos, base[0] + i, base[1] + j, base[2] + k):
+                        continue
                 weight = w[i, 0] * w[j, 1] * w[k, 2]
                 wp.atomic_add(grid_mv, base[0] + i, base[1] + j, base[2] + k, weight * (mv + affine * dpos))
                 wp.atomic_add(grid_m, base[0] + i, base[1] + j, base[2] + k, weight * m)
 
 
-@wp.func
-def wall_response(v: wp.vec3, n: wp.vec3, wall_type: int, friction: float):
-    # n points from the wall into the domain
-    if wall_type == WALL_STICKY:
-        return wp.vec3(0.0)
-    vn = wp.dot(v, n)
-    if vn >= 0.0 and wall_type == WALL_SEPARATE:
-        return v  # leaving the wall is free
-    vt = v - vn * n
-    if vn < 0.0 and friction > 0.0:
-        # Coulomb: the tangential speed drops by mu |v_n|, never reversing
-        vt_len = wp.length(vt)
-        if vt_len > 0.0:
-            vt = vt * wp.max(0.0, 1.0 - friction * (-vn) / vt_len)
-    return vt  # slip: no normal motion either way; separate: only inbound removed
-
-
 @wp.kernel
 def grid_update(
     g: GridSpec,
+    spec: CollisionSpec,
+    colour: ColourField,
     dt: float,
     grid_mv: wp.array3d(dtype=wp.vec3),
     grid_m: wp.array3d(dtype=float),
@@ -108,11 +107,13 @@ def grid_update(
             if xi[d] <= g.domain_lo[d] + tol:
                 n = wp.vec3(0.0)
                 n[d] = 1.0
-                vi = wall_response(vi, n, g.wall_type_lo[d], g.friction_lo[d])
+                vi = boundary_response(vi, wp.vec3(0.0), n, g.wall_type_lo[d], g.friction_lo[d], 0.0)
             if xi[d] >= g.domain_hi[d] - tol:
                 n = wp.vec3(0.0)
                 n[d] = -1.0
-                vi = wall_response(vi, n, g.wall_type_hi[d], g.friction_hi[d])
+                vi = boundary_response(vi, wp.vec3(0.0), n, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+        if spec.enabled != 0:
+            vi = node_contact(spec, colour, g, vi, xi, i, j, k)
     grid_v[i, j, k] = vi
     grid_mv[i, j, k] = wp.vec3(0.0)
     grid_m[i, j, k] = 0.0
@@ -121,11 +122,17 @@ def grid_update(
 @wp.kernel
 def g2p(
     x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
     F: wp.array(dtype=wp.mat33),
     plastic: wp.array(dtype=float),
     material: wp.array(dtype=wp.int32),
+    cp: wp.array(dtype=wp.vec3),
+    cn: wp.array(dtype=wp.vec3),
+    cbody: wp.array(dtype=wp.int32),
     materials: wp.array(dtype=MaterialParams),
     g: GridSpec,
+    spec: CollisionSpec,
+    colour: ColourField,
     dt: float,
     grid_v: wp.array3d(dtype=wp.vec3),
     x_out: wp.array(dtype=wp.vec3),
@@ -133,9 +140,13 @@ def g2p(
     C_out: wp.array(dtype=wp.mat33),
     F_out: wp.array(dtype=wp.mat33),
     plastic_out: wp.array(dtype=float),
+    cp_out: wp.array(dtype=wp.vec3),
+    cn_out: wp.array(dtype=wp.vec3),
+    cbody_out: wp.array(dtype=wp.int32),
 ):
     p = wp.tid()
     xp = x[p]
+    cb = cbody[p]
     base = stencil_base(g, xp)
     fx = stencil_offset(g, xp, base)
     w = bspline_weights(fx)
@@ -147,6 +158,10 @@ def g2p(
                 dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                 weight = w[i, 0] * w[j, 1] * w[k, 2]
                 vi = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                if cb >= 0:
+                    # Eqs. 24-25: an incompatible node lends the boundary velocity of Eq. 23
+                    if not compatible(cp[p], cn[p], cb, xp, colour, xp + dpos, base[0] + i, base[1] + j, base[2] + k):
+                        vi = boundary_velocity(spec, cb, cn[p], xp, v[p])
                 new_v += weight * vi  # Eq. 5 / 11
                 B += weight * wp.outer(vi, dpos)
     # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
@@ -158,6 +173,19 @@ def g2p(
     # is only a safety net that keeps stencils inside the grid. (Clamping at the
     # plane itself would pile particles up there and silently compress material.)
     xn = xp + dt * new_v
+    if spec.cpic != 0:
+        if cb >= 0 or near_surface(colour, g, xn):
+            hit = stop_crossing(spec, g, xp, xn, dt, cb)
+            if hit.hit:
+                xn = hit.x
+                new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+        c = Colour()
+        c.body = -1
+        if near_surface(colour, g, xn):
+            c = colour_point(spec, g, xn)  # colour for the next step's transfers
+        cp_out[p] = c.cp
+        cn_out[p] = c.cn
+        cbody_out[p] = c.body
     for a in range(3):
         xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
     x_out[p] = xn
