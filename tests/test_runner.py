@@ -220,6 +220,38 @@ max = [0.15, 0.2, 0.4]
     assert json.loads((out / "summary.json").read_text())["status"] == "blew_up"
 
 
+def test_interrupt_checkpoints_last_frame_and_resumes(tmp_path, monkeypatch, capsys):
+    original = Simulation.advance
+
+    def advance(self, seconds=None, frames=None, callback=None):
+        def interrupted(sim):
+            callback(sim)
+            if sim.frame == 2:
+                sim.step()  # mid-frame, as a Ctrl-C usually is
+                raise KeyboardInterrupt
+
+        return original(self, seconds=seconds, frames=frames, callback=interrupted)
+
+    monkeypatch.setattr(Simulation, "advance", advance)
+    path = tmp_path / "tiny.toml"
+    path.write_text(
+        '[simulation]\ndomain_max = [0.4, 0.4, 0.4]\ndx = 0.05\n'
+        '[[materials]]\nname = "water"\nmodel = "fluid"\n'
+        '[[bodies]]\nshape = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.15, 0.2, 0.4]\n'
+    )
+    out = tmp_path / "out"
+    code = main(["run", str(path), "--out", str(out), "--frames", "4", "-q"])
+    err = capsys.readouterr().err
+    assert code == 130 and "Traceback" not in err and "--resume" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["frames"] == 2
+    assert [p.name for p in (out / "checkpoints").iterdir()] == ["checkpoint_00002.npz"]
+    monkeypatch.setattr(Simulation, "advance", original)
+    assert main(["run", str(path), "--out", str(out), "--frames", "4", "-q", "--resume"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed" and summary["frames"] == 4 and summary["resumed_from_frame"] == 2
+
+
 def test_cli_run_default_out(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "tiny.toml").write_text(

@@ -84,8 +84,8 @@ def _cmd_run(args) -> int:
             preview=not args.no_preview, progress=not args.quiet, console=con,
         )
     except KeyboardInterrupt:
-        print(f"\ninterrupted; continue with: abmpm run {args.scene} --out {out} --resume", file=sys.stderr)
-        raise
+        print(f"interrupted; continue with: abmpm run {args.scene} --out {out} --resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except SimulationBlowUp as exc:
         raise SimulationBlowUp(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
     except SceneError as exc:
@@ -185,10 +185,16 @@ def _cmd_render(args) -> int:
 def _cmd_bench(args) -> int:
     import importlib
 
+    missing = False
     try:
-        bench = importlib.import_module("abmpm.bench")
-        run_bench = bench.run_bench
-    except (ImportError, AttributeError):
+        run_bench = importlib.import_module("abmpm.bench").run_bench
+    except ModuleNotFoundError as exc:
+        if not (exc.name or "").startswith("abmpm"):
+            raise  # the benchmark exists but one of its dependencies does not
+        missing = True
+    except AttributeError:
+        missing = True
+    if missing:
         print("error: the benchmark is not available in this version of abmpm "
               "(abmpm.bench.run_bench is missing)", file=sys.stderr)
         return EXIT_ERROR

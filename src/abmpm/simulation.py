@@ -67,6 +67,7 @@ class Particles:
     C: np.ndarray
     F: np.ndarray
     plastic: np.ndarray
+    J: np.ndarray  # volume ratio V/V0: det(F) for solids, the tracked J for fluids
 
     def __len__(self) -> int:
         return len(self.x)
@@ -170,7 +171,7 @@ class Simulation:
 
     def step(self) -> None:
         """One substep of length ``self.dt``; frame bookkeeping when a frame completes."""
-        self.solver.step(self._state, self._state, self.dt, self.time)
+        self.solver.step(self._state, self.dt, self.time)
         self.steps += 1
         self.substep += 1
         if self.substep == self.substeps:
@@ -195,7 +196,7 @@ class Simulation:
 
     def _run_frame(self, callback) -> None:
         for _ in range(self.substeps - self.substep):
-            self.solver.step(self._state, self._state, self.dt, self.time)
+            self.solver.step(self._state, self.dt, self.time)
             self.steps += 1
             self.substep += 1
         self._end_frame()
@@ -236,8 +237,14 @@ class Simulation:
         return d
 
     def particles(self) -> Particles:
-        arrays = self._state.numpy()
-        return Particles(**{k: arrays[k] for k in Particles.__dataclass_fields__})
+        return self._particles(self._state.numpy())
+
+    def _particles(self, arrays: dict[str, np.ndarray]) -> Particles:
+        fluid = np.array([m.model == "fluid" for m in self.scene.materials])[arrays["material"]]
+        J = np.linalg.det(arrays["F"].astype(np.float64)).astype(np.float32)
+        J[fluid] = arrays["plastic"][fluid]
+        fields = {k: arrays[k] for k in Particles.__dataclass_fields__ if k != "J"}
+        return Particles(J=J, **fields)
 
     def diagnostics(self) -> dict:
         """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""
@@ -262,7 +269,7 @@ class Simulation:
 
     def state_dict(self, last_good: bool = False) -> tuple[dict[str, np.ndarray], dict]:
         """Arrays and metadata to resume from (at a frame boundary)."""
-        if self.substep != 0:
+        if self.substep != 0 and not last_good:  # the last good state is always a frame boundary
             raise RuntimeError("checkpoints are taken at frame boundaries")
         arrays = dict(self._last_good) if last_good else self._state.numpy()
         frame = self.history[-1]["frame"] if last_good else self.frame

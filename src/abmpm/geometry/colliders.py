@@ -16,7 +16,6 @@ around the origin and placed as ``world = center + R @ local`` with
 from __future__ import annotations
 
 import math
-from functools import reduce
 
 import numpy as np
 import trimesh
@@ -196,13 +195,34 @@ def crossed_plates(size=(1.0, 1.0), thickness=0.0, center=(0.0, 0.0, 0.0), rotat
             part = blade(length, height, 0.0, (0, 0, 0), (0.0, angle, 0.0))
         parts.append(part)
     if thickness > 0.0:
-        merged = trimesh.boolean.union(parts, engine="manifold")
-        merged = _mesh(merged.vertices, merged.faces)
-        if not merged.is_watertight:  # pragma: no cover - manifold3d returns closed output
-            raise RuntimeError("crossed_plates: boolean union did not produce a closed mesh")
+        merged = _union(parts)
     else:
         merged = _mesh(*_concat_arrays(parts))
     return _place(merged, center, rotation_deg)
+
+
+def _union(meshes) -> trimesh.Trimesh:
+    """Boolean union of closed meshes with manifold3d in double precision.
+
+    (``trimesh.boolean.union`` hands manifold3d float32 vertices, which moves the faces
+    of a plate a tenth of a cell thick by ~1e-8 m; ``Mesh64`` keeps float64.)
+    """
+    import manifold3d
+
+    solids = [
+        manifold3d.Manifold(
+            manifold3d.Mesh64(
+                vert_properties=np.ascontiguousarray(m.vertices, dtype=np.float64),
+                tri_verts=np.ascontiguousarray(m.faces, dtype=np.uint64),
+            )
+        )
+        for m in meshes
+    ]
+    result = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).to_mesh64()
+    merged = _mesh(np.asarray(result.vert_properties)[:, :3], np.asarray(result.tri_verts, dtype=np.int64))
+    if not merged.is_watertight:  # pragma: no cover - manifold3d returns closed output
+        raise RuntimeError("boolean union did not produce a closed mesh")
+    return merged
 
 
 def paddle(length=1.0, height=1.0, center=(0.0, 0.0, 0.0), rotation_deg=(0.0, 0.0, 0.0), thickness=0.0):
@@ -631,8 +651,10 @@ def hourglass(
     the axis, so liquid collects) and the top is open (a mouth of ~0.55 ``radius``).
     ``wall_thickness == 0``: one open surface (inner glass face, normals away from the
     axis). ``wall_thickness > 0``: hollow glass whose inner face is the profile above and
-    whose outer face is offset outwards by ``wall_thickness``, joined by a flat lip at
-    the rim; closed and watertight.
+    whose outer face is offset outwards by ``wall_thickness`` (so the glass reaches a
+    wall thickness below ``center[1] - height / 2``), joined by a flat lip at the rim
+    height; closed and watertight. The offset must stay below the radius of curvature
+    of the neck, ``(height / 2)**2 / (2 pi^2 (radius - neck_radius))``, else ValueError.
     """
     height = _positive(height, "hourglass height")
     radius = _positive(radius, "hourglass radius")
@@ -645,7 +667,18 @@ def hourglass(
     if wall > 0.0:
         outer = _offset_profile(prof, wall)
         outer[0, 0] = 0.0  # outer bottom pole, a wall thickness below the inner one
-        outer[-1] = (prof[-1, 0] + wall, prof[-1, 1])  # flat lip at the rim
+        neck = int(np.argmin(np.abs(prof[:, 1] - height / 2)))
+        outer[neck] = (neck_radius + wall, height / 2)  # the neck is vertical: exact offset
+        # the mouth leans inwards, so the offset face rises above the rim: cut it at the
+        # rim height, where a flat lip (an annulus) joins it to the inner face
+        k = int(np.argmax(outer[:, 1] >= height)) if np.any(outer[:, 1] >= height) else len(outer) - 1
+        a, b = outer[k - 1], outer[k]
+        lip = a + (b - a) * (height - a[1]) / (b[1] - a[1]) if b[1] != a[1] else b.copy()
+        lip[1] = height
+        keep = outer[:k]
+        if np.hypot(*(keep[-1] - lip)) <= 1e-9 * height:
+            keep = keep[:-1]
+        outer = np.concatenate([keep, lip[None]])
         # outer face upwards from its pole (normals away from the axis), the lip inwards
         # (normal up), the inner face downwards to its pole (normals towards the axis,
         # i.e. out of the glass): the revolved loop encloses the glass wall

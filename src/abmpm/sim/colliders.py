@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 import warp as wp
+
+wp.set_module_options({"enable_backward": False})
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..geometry.transforms import euler_matrix
@@ -90,6 +92,29 @@ def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField
     ni = f.dir[i, j, k]
     ci = xi - f.dist[i, j, k] * ni
     return not (wp.dot(xi - cp, cn) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
+
+
+ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
+
+
+@wp.func
+def compatibility_mask(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, g: GridSpec,
+                       base: wp.vec3i, fx: wp.vec3):
+    """Bit (9 i + 3 j + k) set when stencil node (i, j, k) is compatible with the particle."""
+    mask = int(0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                if compatible(cp, cn, cbody, xp, f, xi, base[0] + i, base[1] + j, base[2] + k):
+                    mask = mask | (1 << (9 * i + 3 * j + k))
+    return mask
+
+
+@wp.func
+def node_bit(mask: int, i: int, j: int, k: int):
+    # 1.0 for a compatible node, 0.0 otherwise: branch-free in the transfer loops
+    return float((mask >> (9 * i + 3 * j + k)) & 1)
 
 
 @wp.func

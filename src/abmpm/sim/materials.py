@@ -3,11 +3,12 @@
 Each particle carries a material index into an array of :class:`MaterialParams`.
 Two device functions dispatch on ``params.model``:
 
-* :func:`kirchhoff_stress` gives tau = P F^T = J sigma, used by the MLS-MPM force
+* :func:`kirchhoff_stress` (fluids: :func:`fluid_stress`, from J alone) gives tau = P F^T = J sigma, used by the MLS-MPM force
   of paper Eq. 9 (f_i = -4/dx^2 V0 tau w_ip (x_i - x_p)).
 * :func:`update_deformation` advances F by Eq. 7 and applies the plastic / relaxation return mapping to
   the trial deformation gradient after Eq. 7 (paper Eqs. 13-14) and updates the
-  scalar plastic state (snow: J_P; sand: accumulated volumetric correction).
+  scalar state (fluid: volume ratio J; snow: J_P; sand: accumulated volumetric
+  correction).
 
 To add a model: a new ``MODEL_*`` id, a branch in both device functions, a branch in
 :func:`material_params` (scene parameters -> struct) and in :func:`wave_speed`.
@@ -19,6 +20,8 @@ import math
 
 import numpy as np
 import warp as wp
+
+wp.set_module_options({"enable_backward": False})
 
 from ..scene import model as sm
 
@@ -120,12 +123,6 @@ def viscous_kirchhoff(eta: float, J: float, C: wp.mat33):
     return (eta * J) * (C + wp.transpose(C))
 
 
-@wp.func
-def fluid_J(F: wp.mat33):
-    # A fluid keeps no shear memory, only its volume ratio J. Its F is stored as
-    # diag(J, 1, 1): det(F) = J for any reader, and the step needs no SVD, no cube
-    # root and no 3x3 product for it.
-    return F[0, 0]
 
 
 @wp.func
@@ -159,11 +156,14 @@ def hencky_kirchhoff(mu: float, lam: float, F: wp.mat33):
 
 
 @wp.func
-def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float):
-    if mat.model == MODEL_FLUID:
-        J = fluid_J(F)
-        p = fluid_pressure(mat, J)
-        return wp.identity(n=3, dtype=float) * (-p * J) + viscous_kirchhoff(mat.viscosity, J, C)
+def fluid_stress(mat: MaterialParams, J: float, C: wp.mat33):
+    # A fluid keeps no shear memory, only its volume ratio J (kept in the particle's
+    # scalar state; its F stays the identity): no SVD, no F traffic for fluids.
+    return wp.identity(n=3, dtype=float) * (-fluid_pressure(mat, J) * J) + viscous_kirchhoff(mat.viscosity, J, C)
+
+
+@wp.func
+def solid_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float):
     if mat.model == MODEL_SAND:
         return hencky_kirchhoff(mat.mu, mat.lam, F)
     if mat.model == MODEL_SNOW:
@@ -174,6 +174,13 @@ def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: flo
     if mat.model == MODEL_VISCOELASTIC:
         tau = tau + viscous_kirchhoff(mat.viscosity, wp.determinant(F), C)
     return tau
+
+
+@wp.func
+def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float):
+    if mat.model == MODEL_FLUID:
+        return fluid_stress(mat, plastic, C)
+    return solid_stress(mat, F, C, plastic)
 
 
 @wp.struct
@@ -241,14 +248,19 @@ def maxwell_relaxation(mat: MaterialParams, F: wp.mat33, dt: float):
 
 
 @wp.func
+def fluid_volume_update(J: float, C: wp.mat33, dt: float):
+    # J <- det(I + dt C) J: the determinant of Eq. 7 (a fluid's F stays the identity)
+    return wp.determinant(wp.identity(n=3, dtype=float) + dt * C) * J
+
+
+@wp.func
 def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, plastic: float, dt: float):
     """F <- (I + dt C) F (paper Eq. 7), then the model's return mapping (Eqs. 13-14)."""
     out = Deformation()
     out.plastic = plastic
     if mat.model == MODEL_FLUID:
-        # J <- det(I + dt C) J, the determinant of Eq. 7, stored as F = diag(J, 1, 1)
-        out.F = wp.identity(n=3, dtype=float)
-        out.F[0, 0] = wp.determinant(wp.identity(n=3, dtype=float) + dt * C) * fluid_J(F)
+        out.F = F
+        out.plastic = fluid_volume_update(plastic, C, dt)
         return out
     F_trial = (wp.identity(n=3, dtype=float) + dt * C) * F
     out.F = F_trial

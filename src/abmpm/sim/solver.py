@@ -1,6 +1,6 @@
 """The MLS-MPM step, in one place.
 
-``MPMSolver.step(state_in, state_out, dt, time)`` is the whole algorithm of a step:
+``MPMSolver.step(state, dt, time)`` is the whole algorithm of a step:
 move the colliders and rebuild their colour distance field, P2G with MLS forces
 (compatible nodes only), grid update with walls and collider contact, G2P with
 boundary velocities, deformation update and return mapping, advection without
@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import warp as wp
+
+wp.set_module_options({"enable_backward": False})
 
 from . import transfer
 from ..scene.model import FACES
@@ -44,6 +46,8 @@ class MPMSolver:
             {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}, device,
         )
         self.colliders = colliders
+        # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
+        self.cpic = colliders is not None and bool(colliders.spec.cpic)
         if colliders is None:
             self.collision = empty_spec(device)
             self.grid.colour = colour_field((1, 1, 1), device)
@@ -69,24 +73,22 @@ class MPMSolver:
         wp.launch(colour_particles, dim=state.count, device=self.device,
                   inputs=[state.x, self.collision, g.spec, g.colour], outputs=[state.cp, state.cn, state.cbody])
 
-    def step(self, state_in: ParticleState, state_out: ParticleState, dt: float, time: float = 0.0) -> None:
-        """Advance from ``time`` by dt. ``state_out`` may be ``state_in`` (in place): G2P
+    def step(self, state: ParticleState, dt: float, time: float = 0.0) -> None:
+        """Advance ``state`` in place from ``time`` by ``dt``. In place is safe: G2P
         reads and writes only its own particle, after P2G has read them all."""
         self.move_colliders(time)
-        g, s = self.grid, state_in
+        g, s = self.grid, state
         wp.launch(
-            transfer.p2g, dim=s.count, device=self.device,
+            transfer.P2G[self.cpic], dim=s.count, device=self.device,
             inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.cp, s.cn, s.cbody,
                     self.materials, g.spec, g.colour, dt, g.mv, g.m],
         )
         wp.launch(transfer.grid_update, dim=g.dims, device=self.device,
                   inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v])
-        o = state_out
         wp.launch(
-            transfer.g2p, dim=s.count, device=self.device,
-            inputs=[s.x, s.v, s.F, s.plastic, s.material, s.cp, s.cn, s.cbody, self.materials,
-                    g.spec, self.collision, g.colour, dt, g.v],
-            outputs=[o.x, o.v, o.C, o.F, o.plastic, o.cp, o.cn, o.cbody],
+            transfer.G2P[self.cpic], dim=s.count, device=self.device,
+            inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
+                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.cp, s.cn, s.cbody],
         )
 
     # ------------------------------------------------------------------ sorting

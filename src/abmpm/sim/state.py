@@ -1,9 +1,8 @@
 """Particle state.
 
 All particles of every level live in one set of arrays; ``level`` says which grid a
-particle belongs to (0 = original, 1 = subdivided). The solver's step reads one
-state and writes another (``step(state_in, state_out, dt)``, which may be the
-same object for an in-place step).
+particle belongs to (0 = original, 1 = subdivided). The solver's step updates a
+state in place (``step(state, dt, time)``).
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ class ParticleState:
     v: wp.array  # velocity, m/s
     C: wp.array  # APIC affine matrix (~ velocity gradient), 1/s
     F: wp.array  # elastic deformation gradient
-    plastic: wp.array  # scalar plastic state (snow J_P; sand volume correction)
+    plastic: wp.array  # scalar state: fluid volume ratio J; snow J_P; sand volume correction
     mass: wp.array  # kg
     volume: wp.array  # initial volume V0, m^3
     material: wp.array  # index into the scene's materials

@@ -1,20 +1,27 @@
 """Particle-grid transfers of MLS-MPM with APIC (paper Eqs. 1-12).
 
 Kernels are parameterised by the receiving grid's :class:`GridSpec`, so they serve
-the original grid (dx) and the subdivided grid (dx/b) alike.
+the original grid (dx) and the subdivided grid (dx/b) alike. P2G and G2P come in
+two compile-time variants (``P2G[cpic]``, ``G2P[cpic]``): with colliders they test
+compatibility (CPIC), without they are the plain loops. On Warp's CPU backend the
+collider code costs time even where it is skipped, so plain scenes do not carry it.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})
+
 from .boundary import boundary_response
 from .colliders import (
-    CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatible, near_surface, node_contact,
-    stop_crossing,
+    ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
+    near_surface, node_bit, node_contact, stop_crossing,
 )
 from .grid import GridSpec
-from .materials import MaterialParams, kirchhoff_stress, update_deformation
+from .materials import (
+    MODEL_FLUID, MaterialParams, fluid_stress, fluid_volume_update, solid_stress, update_deformation,
+)
 
 
 @wp.func
@@ -39,49 +46,60 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
     return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
-@wp.kernel
-def p2g(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    C: wp.array(dtype=wp.mat33),
-    F: wp.array(dtype=wp.mat33),
-    plastic: wp.array(dtype=float),
-    mass: wp.array(dtype=float),
-    volume: wp.array(dtype=float),
-    material: wp.array(dtype=wp.int32),
-    cp: wp.array(dtype=wp.vec3),
-    cn: wp.array(dtype=wp.vec3),
-    cbody: wp.array(dtype=wp.int32),
-    materials: wp.array(dtype=MaterialParams),
-    g: GridSpec,
-    colour: ColourField,
-    dt: float,
-    grid_mv: wp.array3d(dtype=wp.vec3),
-    grid_m: wp.array3d(dtype=float),
-):
-    p = wp.tid()
-    xp = x[p]
-    cb = cbody[p]
-    base = stencil_base(g, xp)
-    fx = stencil_offset(g, xp, base)
-    w = bspline_weights(fx)
-    m = mass[p]
-    tau = kirchhoff_stress(materials[material[p]], F[p], C[p], plastic[p])
-    # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
-    # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
-    affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * C[p]
-    mv = m * v[p]
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                if cb >= 0:
-                    # CPIC: scatter only to nodes on the particle's side of every collider
-                    if not compatible(cp[p], cn[p], cb, xp, colour, xp + dpos, base[0] + i, base[1] + j, base[2] + k):
-                        continue
-                weight = w[i, 0] * w[j, 1] * w[k, 2]
-                wp.atomic_add(grid_mv, base[0] + i, base[1] + j, base[2] + k, weight * (mv + affine * dpos))
-                wp.atomic_add(grid_m, base[0] + i, base[1] + j, base[2] + k, weight * m)
+def _make_p2g(cpic: bool):
+    @wp.kernel
+    def p2g(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        C: wp.array(dtype=wp.mat33),
+        F: wp.array(dtype=wp.mat33),
+        plastic: wp.array(dtype=float),
+        mass: wp.array(dtype=float),
+        volume: wp.array(dtype=float),
+        material: wp.array(dtype=wp.int32),
+        cp: wp.array(dtype=wp.vec3),
+        cn: wp.array(dtype=wp.vec3),
+        cbody: wp.array(dtype=wp.int32),
+        materials: wp.array(dtype=MaterialParams),
+        g: GridSpec,
+        colour: ColourField,
+        dt: float,
+        grid_mv: wp.array3d(dtype=wp.vec3),
+        grid_m: wp.array3d(dtype=float),
+    ):
+        p = wp.tid()
+        xp = x[p]
+        base = stencil_base(g, xp)
+        fx = stencil_offset(g, xp, base)
+        w = bspline_weights(fx)
+        m = mass[p]
+        Cp = C[p]
+        mat = materials[material[p]]
+        tau = wp.mat33()
+        if mat.model == MODEL_FLUID:
+            tau = fluid_stress(mat, plastic[p], Cp)  # no F traffic for fluids
+        else:
+            tau = solid_stress(mat, F[p], Cp, plastic[p])
+        # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
+        # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
+        affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp
+        mv = m * v[p]
+        mask = ALL_NODES
+        if wp.static(cpic):
+            # CPIC: scatter only to nodes on the particle's side of every collider
+            if cbody[p] >= 0:
+                mask = compatibility_mask(cp[p], cn[p], cbody[p], xp, colour, g, base, fx)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                    weight = w[i, 0] * w[j, 1] * w[k, 2]
+                    if wp.static(cpic):
+                        weight = weight * node_bit(mask, i, j, k)
+                    wp.atomic_add(grid_mv, base[0] + i, base[1] + j, base[2] + k, weight * (mv + affine * dpos))
+                    wp.atomic_add(grid_m, base[0] + i, base[1] + j, base[2] + k, weight * m)
+
+    return p2g
 
 
 @wp.kernel
@@ -94,8 +112,8 @@ def grid_update(
     grid_m: wp.array3d(dtype=float),
     grid_v: wp.array3d(dtype=wp.vec3),
 ):
-    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls; also clears the P2G
-    # accumulators for the next step so the grid is swept once per step.
+    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
+    # clears the P2G accumulators for the next step so the grid is swept once.
     i, j, k = wp.tid()
     m = grid_m[i, j, k]
     vi = wp.vec3(0.0)
@@ -119,77 +137,95 @@ def grid_update(
     grid_m[i, j, k] = 0.0
 
 
-@wp.kernel
-def g2p(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    F: wp.array(dtype=wp.mat33),
-    plastic: wp.array(dtype=float),
-    material: wp.array(dtype=wp.int32),
-    cp: wp.array(dtype=wp.vec3),
-    cn: wp.array(dtype=wp.vec3),
-    cbody: wp.array(dtype=wp.int32),
-    materials: wp.array(dtype=MaterialParams),
-    g: GridSpec,
-    spec: CollisionSpec,
-    colour: ColourField,
-    dt: float,
-    grid_v: wp.array3d(dtype=wp.vec3),
-    x_out: wp.array(dtype=wp.vec3),
-    v_out: wp.array(dtype=wp.vec3),
-    C_out: wp.array(dtype=wp.mat33),
-    F_out: wp.array(dtype=wp.mat33),
-    plastic_out: wp.array(dtype=float),
-    cp_out: wp.array(dtype=wp.vec3),
-    cn_out: wp.array(dtype=wp.vec3),
-    cbody_out: wp.array(dtype=wp.int32),
-):
-    p = wp.tid()
-    xp = x[p]
-    cb = cbody[p]
-    base = stencil_base(g, xp)
-    fx = stencil_offset(g, xp, base)
-    w = bspline_weights(fx)
-    new_v = wp.vec3(0.0)
-    B = wp.mat33(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                weight = w[i, 0] * w[j, 1] * w[k, 2]
-                vi = grid_v[base[0] + i, base[1] + j, base[2] + k]
-                if cb >= 0:
-                    # Eqs. 24-25: an incompatible node lends the boundary velocity of Eq. 23
-                    if not compatible(cp[p], cn[p], cb, xp, colour, xp + dpos, base[0] + i, base[1] + j, base[2] + k):
-                        vi = boundary_velocity(spec, cb, cn[p], xp, v[p])
-                new_v += weight * vi  # Eq. 5 / 11
-                B += weight * wp.outer(vi, dpos)
-    # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
-    new_C = (4.0 * g.inv_dx * g.inv_dx) * B
-    # Eq. 7, then the material's return mapping (Eqs. 13-14)
-    d = update_deformation(materials[material[p]], F[p], new_C, plastic[p], dt)
-    # advect. Nodes on and beyond the wall planes enforce the walls, so a particle
-    # can sink at most ~dx/2 into a wall before they stop it; the clamp one cell out
-    # is only a safety net that keeps stencils inside the grid. (Clamping at the
-    # plane itself would pile particles up there and silently compress material.)
-    xn = xp + dt * new_v
-    if spec.cpic != 0:
-        if cb >= 0 or near_surface(colour, g, xn):
-            hit = stop_crossing(spec, g, xp, xn, dt, cb)
-            if hit.hit:
-                xn = hit.x
-                new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
-        c = Colour()
-        c.body = -1
-        if near_surface(colour, g, xn):
-            c = colour_point(spec, g, xn)  # colour for the next step's transfers
-        cp_out[p] = c.cp
-        cn_out[p] = c.cn
-        cbody_out[p] = c.body
-    for a in range(3):
-        xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
-    x_out[p] = xn
-    v_out[p] = new_v
-    C_out[p] = new_C
-    F_out[p] = d.F
-    plastic_out[p] = d.plastic
+def _make_g2p(cpic: bool):
+    @wp.kernel
+    def g2p(
+        materials: wp.array(dtype=MaterialParams),
+        g: GridSpec,
+        spec: CollisionSpec,
+        colour: ColourField,
+        dt: float,
+        grid_v: wp.array3d(dtype=wp.vec3),
+        # particle state, updated in place (each thread touches only its own particle)
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        C: wp.array(dtype=wp.mat33),
+        F: wp.array(dtype=wp.mat33),
+        plastic: wp.array(dtype=float),
+        material: wp.array(dtype=wp.int32),
+        cp: wp.array(dtype=wp.vec3),
+        cn: wp.array(dtype=wp.vec3),
+        cbody: wp.array(dtype=wp.int32),
+    ):
+        p = wp.tid()
+        xp = x[p]
+        base = stencil_base(g, xp)
+        fx = stencil_offset(g, xp, base)
+        w = bspline_weights(fx)
+        new_v = wp.vec3(0.0)
+        B = wp.mat33(0.0)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                    weight = w[i, 0] * w[j, 1] * w[k, 2]
+                    vi = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                    new_v += weight * vi  # Eq. 5 / 11
+                    B += weight * wp.outer(vi, dpos)
+        if wp.static(cpic):
+            cb = cbody[p]
+            if cb >= 0:
+                # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
+                mask = compatibility_mask(cp[p], cn[p], cb, xp, colour, g, base, fx)
+                if mask != ALL_NODES:
+                    v_bar = boundary_velocity(spec, cb, cn[p], xp, v[p])
+                    for i in range(3):
+                        for j in range(3):
+                            for k in range(3):
+                                if node_bit(mask, i, j, k) == 0.0:
+                                    dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                                    weight = w[i, 0] * w[j, 1] * w[k, 2]
+                                    dv = v_bar - grid_v[base[0] + i, base[1] + j, base[2] + k]
+                                    new_v += weight * dv
+                                    B += weight * wp.outer(dv, dpos)
+        # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
+        new_C = (4.0 * g.inv_dx * g.inv_dx) * B
+        # Eq. 7, then the material's return mapping (Eqs. 13-14)
+        mat = materials[material[p]]
+        if mat.model == MODEL_FLUID:
+            plastic[p] = fluid_volume_update(plastic[p], new_C, dt)
+        else:
+            d = update_deformation(mat, F[p], new_C, plastic[p], dt)
+            F[p] = d.F
+            plastic[p] = d.plastic
+        xn = xp + dt * new_v
+        if wp.static(cpic):
+            # no crossing: stop at the surface on the particle's own side
+            cb = cbody[p]
+            if cb >= 0 or near_surface(colour, g, xn):
+                hit = stop_crossing(spec, g, xp, xn, dt, cb)
+                if hit.hit != 0:
+                    xn = hit.x
+                    new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+            c = Colour()
+            c.body = -1
+            if near_surface(colour, g, xn):
+                c = colour_point(spec, g, xn)  # colour for the next step's transfers
+            cp[p] = c.cp
+            cn[p] = c.cn
+            cbody[p] = c.body
+        # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
+        # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
+        # a safety net that keeps stencils inside the grid. (Clamping at the plane
+        # itself would pile particles up there and silently compress material.)
+        for a in range(3):
+            xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
+        x[p] = xn
+        v[p] = new_v
+        C[p] = new_C
+
+    return g2p
+
+
+P2G = {False: _make_p2g(False), True: _make_p2g(True)}
+G2P = {False: _make_g2p(False), True: _make_g2p(True)}

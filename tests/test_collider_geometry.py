@@ -1,0 +1,320 @@
+"""Procedural collider geometry (abmpm.geometry.colliders)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from abmpm.geometry.colliders import (
+    PROCEDURAL,
+    blade,
+    boundary_loops,
+    crossed_plates,
+    funnel,
+    hourglass,
+    is_open,
+    letter_hole_polygons,
+    letter_panel,
+    mesh_boundary_edges,
+    paddle,
+    sheet,
+    thin_box,
+)
+from abmpm.geometry.transforms import euler_matrix
+
+CLOSED = {
+    "thin_box": lambda: thin_box((0.5, 0.002, 0.3), (0.1, 0.2, 0.3), (10, 20, 30)),
+    "blade_thick": lambda: blade(0.4, 0.2, 0.002),
+    "crossed_thick": lambda: crossed_plates((0.4, 0.3), 0.004),
+    "letter_thick": lambda: letter_panel("LOB", (0.6, 0.3), 0.004),
+    "hourglass_wall": lambda: hourglass(0.5, 0.15, 0.02, wall_thickness=0.004, segments=32),
+}
+
+OPEN = {
+    "sheet": lambda: sheet((0.5, 0.3), resolution=(4, 3)),
+    "blade": lambda: blade(0.4, 0.2),
+    "paddle": lambda: paddle(0.4, 0.2, (0.5, 0.5, 0.5)),
+    "crossed": lambda: crossed_plates((0.4, 0.3)),
+    "funnel": lambda: funnel(0.2, 0.03, 0.15, 0.1, segments=32),
+    "hourglass": lambda: hourglass(0.5, 0.15, 0.02, segments=32),
+    "letter": lambda: letter_panel("LOB", (0.6, 0.3)),
+}
+
+
+def edge_use_counts(mesh: trimesh.Trimesh) -> np.ndarray:
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return counts
+
+
+def assert_clean(mesh: trimesh.Trimesh) -> None:
+    assert isinstance(mesh, trimesh.Trimesh)
+    assert mesh.vertices.dtype == np.float64
+    assert len(mesh.faces) > 0 and np.all(np.isfinite(mesh.vertices))
+    assert mesh.nondegenerate_faces(height=1e-10).all(), "degenerate (zero-area) faces"
+    assert edge_use_counts(mesh).max() <= 2, "an edge is shared by more than two faces"
+    assert mesh.is_winding_consistent
+
+
+@pytest.mark.parametrize("name", sorted(CLOSED))
+def test_closed_colliders_are_watertight_solids(name):
+    mesh = CLOSED[name]()
+    assert_clean(mesh)
+    assert mesh.is_watertight and mesh.is_volume
+    assert not is_open(mesh) and mesh_boundary_edges(mesh).shape == (0, 2)
+    assert mesh.volume > 0.0  # outward normals
+
+
+@pytest.mark.parametrize("name", sorted(OPEN))
+def test_open_colliders_have_boundary_and_no_degenerate_faces(name):
+    mesh = OPEN[name]()
+    assert_clean(mesh)
+    edges = mesh_boundary_edges(mesh)
+    assert is_open(mesh) and not mesh.is_watertight
+    assert edges.ndim == 2 and edges.shape[1] == 2 and len(edges) > 0
+    assert np.issubdtype(edges.dtype, np.integer)
+
+
+def test_registry_names_builders():
+    assert set(PROCEDURAL) >= {"sheet", "thin_box", "blade", "crossed_plates", "letter_panel", "hourglass", "funnel", "paddle"}
+    for fn in PROCEDURAL.values():
+        assert callable(fn)
+
+
+# ----------------------------------------------------------------------------- plates
+
+
+def test_sheet_is_a_rectangle_in_xz_with_normal_up():
+    mesh = sheet((0.5, 0.3))
+    assert len(mesh.faces) == 2 and len(mesh.vertices) == 4
+    np.testing.assert_allclose(mesh.bounds, [[-0.25, 0, -0.15], [0.25, 0, 0.15]])
+    np.testing.assert_allclose(mesh.face_normals, [[0, 1, 0]] * 2, atol=1e-12)
+    assert len(mesh_boundary_edges(mesh)) == 4
+    assert len(boundary_loops(mesh)) == 1
+
+
+def test_sheet_resolution_tessellates():
+    mesh = sheet((0.5, 0.3), resolution=(5, 3))
+    assert len(mesh.faces) == 2 * 5 * 3 and len(mesh.vertices) == 6 * 4
+    assert mesh.area == pytest.approx(0.15)
+    assert len(mesh_boundary_edges(mesh)) == 2 * (5 + 3)
+    np.testing.assert_allclose(mesh.face_normals[:, 1], 1.0)
+    assert len(sheet((1, 1), resolution=4).faces) == 32
+
+
+def test_sheet_rotation_and_center_are_applied():
+    center, rot = np.array([0.3, 0.5, -0.2]), (20.0, -35.0, 50.0)
+    flat, placed = sheet((0.5, 0.3), resolution=2), sheet((0.5, 0.3), center, rot, resolution=2)
+    R = euler_matrix(rot)
+    np.testing.assert_allclose(placed.vertices, flat.vertices @ R.T + center, atol=1e-12)
+    np.testing.assert_allclose(placed.face_normals, np.tile(R @ [0, 1, 0], (len(placed.faces), 1)), atol=1e-12)
+    # a sheet rotated 90 degrees about x stands up with its normal along +z
+    upright = sheet((0.5, 0.3), rotation_deg=(90, 0, 0))
+    np.testing.assert_allclose(upright.face_normals, [[0, 0, 1]] * 2, atol=1e-12)
+
+
+def test_thin_box_size_and_volume():
+    mesh = thin_box((0.5, 0.002, 0.3), center=(1.0, 2.0, 3.0))
+    assert mesh.volume == pytest.approx(0.5 * 0.002 * 0.3)
+    np.testing.assert_allclose(mesh.bounds, [[0.75, 1.999, 2.85], [1.25, 2.001, 3.15]])
+
+
+def test_blade_zero_thickness_is_xy_sheet_and_thick_is_box():
+    open_blade = blade(0.4, 0.2, 0.0, center=(0.1, 0.2, 0.3))
+    np.testing.assert_allclose(open_blade.bounds, [[-0.1, 0.1, 0.3], [0.3, 0.3, 0.3]], atol=1e-12)
+    np.testing.assert_allclose(open_blade.face_normals, [[0, 0, 1]] * 2, atol=1e-12)
+    thick = blade(0.4, 0.2, 0.002)
+    assert thick.volume == pytest.approx(0.4 * 0.2 * 0.002)
+    np.testing.assert_allclose(thick.extents, [0.4, 0.2, 0.002])
+    # the paddle is the same sheet, turning about its own middle
+    np.testing.assert_allclose(paddle(0.4, 0.2, (0.1, 0.2, 0.3)).vertices, open_blade.vertices)
+
+
+def test_crossed_plates_form_an_x_seen_from_above():
+    length, height, t = 0.4, 0.3, 0.004
+    thin = crossed_plates((length, height))
+    assert len(boundary_loops(thin)) == 2  # two separate sheets
+    # both plates are vertical (normals horizontal) and at +-45 degrees
+    n = thin.face_normals
+    np.testing.assert_allclose(n[:, 1], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.abs(n[:, 0]), np.sqrt(0.5), atol=1e-12)
+    np.testing.assert_allclose(np.abs(n[:, 2]), np.sqrt(0.5), atol=1e-12)
+    half = length / 2 * np.sqrt(0.5)
+    np.testing.assert_allclose(thin.bounds, [[-half, -height / 2, -half], [half, height / 2, half]], atol=1e-12)
+    thick = crossed_plates((length, height), t, center=(0.5, 0.5, 0.5))
+    # two plates minus their t x t x height overlap at the crossing
+    assert thick.volume == pytest.approx(2 * length * height * t - t * t * height, rel=1e-9)
+    np.testing.assert_allclose(thick.centroid, [0.5, 0.5, 0.5], atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- letters
+
+
+def test_letter_panel_LOB_has_three_glyph_holes():
+    size = (0.6, 0.3)
+    holes = letter_hole_polygons("LOB", size)
+    # one hole per glyph; its interiors are the islands of material that stay:
+    # "L" none, "O" its counter, "B" its two counters
+    assert len(holes) == 3
+    assert [len(h.interiors) for h in holes] == [0, 1, 2]
+
+    mesh = letter_panel("LOB", size)
+    # Boundary loops of the open sheet, counted as connected groups of boundary edges:
+    #   1 outer rectangle
+    # + 3 hole outlines (the outer contours of L, O and B)
+    # + 3 island outlines (the counter of O and the two counters of B, whose material
+    #   stays in place as separate pieces of the sheet)
+    # = 7 loops.
+    assert len(boundary_loops(mesh)) == 1 + 3 + 3
+
+    # single-sided sheet facing +z, area = panel minus the glyph holes
+    np.testing.assert_allclose(mesh.face_normals[:, 2], 1.0, atol=1e-9)
+    np.testing.assert_allclose(mesh.vertices[:, 2], 0.0)
+    hole_area = sum(h.area for h in holes)
+    assert mesh.area == pytest.approx(size[0] * size[1] - hole_area, rel=1e-9)
+    np.testing.assert_allclose(mesh.bounds[:, :2], [[-0.3, -0.15], [0.3, 0.15]], atol=1e-12)
+
+
+def test_letter_panel_text_is_centred_and_fills_60_percent_of_height():
+    w, h = 0.6, 0.3
+    holes = letter_hole_polygons("LOB", (w, h))
+    lo = np.min([p.bounds[:2] for p in holes], axis=0)
+    hi = np.max([p.bounds[2:] for p in holes], axis=0)
+    assert hi[1] - lo[1] == pytest.approx(0.6 * h, rel=1e-6)
+    np.testing.assert_allclose((lo + hi) / 2, 0.0, atol=1e-9)
+    # an explicit font size (em size in metres) is honoured: cap height ~0.73 em
+    small = letter_hole_polygons("LOB", (w, h), font_size=0.05)
+    height = max(p.bounds[3] for p in small) - min(p.bounds[1] for p in small)
+    assert 0.03 < height < 0.05
+
+
+def test_letter_panel_thick_is_extruded_and_placed():
+    size, t = (0.6, 0.3), 0.004
+    sheet_mesh = letter_panel("LOB", size)
+    solid = letter_panel("LOB", size, t, center=(0.5, 0.4, 0.3), rotation_deg=(0, 90, 0))
+    assert solid.volume == pytest.approx(sheet_mesh.area * t, rel=1e-9)
+    # rotated 90 degrees about y, the panel's normal (+z) points along +x
+    np.testing.assert_allclose(solid.extents, [t, 0.3, 0.6], atol=1e-9)
+    np.testing.assert_allclose(solid.bounds.mean(axis=0), [0.5, 0.4, 0.3], atol=1e-9)
+
+
+def test_letter_panel_with_kerning_and_shared_baselines_stays_conforming():
+    # "AV" is kerned, and all letters share baseline and cap height: collinear
+    # vertices across holes, the case where ear clipping alone leaves T-junctions
+    text = "AVA MPM 8"
+    holes = letter_hole_polygons(text, (1.2, 0.3))
+    mesh = letter_panel(text, (1.2, 0.3))
+    assert_clean(mesh)
+    assert len(boundary_loops(mesh)) == 1 + len(holes) + sum(len(h.interiors) for h in holes)
+    assert letter_panel(text, (1.2, 0.3), 0.003).is_watertight
+
+
+# ----------------------------------------------------------------------------- revolution
+
+
+def ring_radius(mesh, center, tol=1e-9):
+    """Distances from the y axis through ``center`` of the vertices at height ``center[1]``."""
+    center = np.asarray(center, dtype=float)
+    sel = np.abs(mesh.vertices[:, 1] - center[1]) < tol
+    assert sel.sum() >= 3
+    d = mesh.vertices[sel] - center
+    return np.hypot(d[:, 0], d[:, 2])
+
+
+def test_hourglass_neck_bulbs_and_open_top():
+    height, radius, neck = 0.5, 0.15, 0.02
+    center = np.array([0.4, 0.6, 0.5])
+    mesh = hourglass(height, radius, neck, center=center, segments=48)
+    local = mesh.vertices - center
+    r_mid = ring_radius(mesh, center)
+    assert np.all(np.abs(r_mid - neck) <= 0.02 * neck)
+    # the neck is the narrowest ring away from the ends; the bulbs reach `radius`
+    r = np.hypot(local[:, 0], local[:, 2])
+    assert r.max() == pytest.approx(radius, rel=0.01)
+    upper = local[:, 1] > 0
+    assert r[upper].max() == pytest.approx(radius, rel=0.01)
+    assert r[~upper].max() == pytest.approx(radius, rel=0.01)
+    np.testing.assert_allclose(mesh.bounds[:, 1], [center[1] - height / 2, center[1] + height / 2])
+    # closed at the bottom (a pole on the axis), one open loop: the mouth at the top
+    loops = boundary_loops(mesh)
+    assert len(loops) == 1
+    np.testing.assert_allclose(mesh.vertices[loops[0], 1], center[1] + height / 2)
+    bottom = mesh.vertices[np.argmin(mesh.vertices[:, 1])]
+    np.testing.assert_allclose(bottom[[0, 2]], center[[0, 2]], atol=1e-12)
+    # normals point away from the axis at the bulbs' equator
+    eq = np.abs(mesh.triangles_center[:, 1] - (center[1] - height / 4)) < 0.02 * height
+    radial = mesh.triangles_center[eq] - center
+    radial[:, 1] = 0
+    assert np.all(np.einsum("ij,ij->i", mesh.face_normals[eq], radial) > 0)
+
+
+def test_hourglass_glass_wall_is_closed_with_inner_neck_kept():
+    height, radius, neck, wall = 0.5, 0.15, 0.02, 0.004
+    glass = hourglass(height, radius, neck, wall_thickness=wall, segments=48)
+    assert glass.is_watertight and glass.volume > 0
+    r_mid = ring_radius(glass, (0.0, 0.0, 0.0))
+    # the inner neck is neck_radius, the outer one a wall thickness further out
+    assert np.abs(r_mid.min() - neck) <= 0.02 * neck
+    assert r_mid.max() == pytest.approx(neck + wall, rel=0.02)
+    # volume ~ inner surface area x wall thickness
+    inner = hourglass(height, radius, neck, segments=48)
+    assert glass.volume == pytest.approx(inner.area * wall, rel=0.1)
+    with pytest.raises(ValueError):
+        hourglass(height, radius, neck, wall_thickness=0.1)  # thicker than the neck's curvature radius
+
+
+def test_hourglass_rotation_and_center_are_applied():
+    center, rot = np.array([0.1, 0.2, 0.3]), (30.0, 0.0, 45.0)
+    base = hourglass(0.5, 0.15, 0.02, segments=24)
+    placed = hourglass(0.5, 0.15, 0.02, center=center, segments=24, rotation_deg=rot)
+    np.testing.assert_allclose(placed.vertices, base.vertices @ euler_matrix(rot).T + center, atol=1e-12)
+
+
+def test_funnel_radii_and_open_ends():
+    top, pipe, cone_h, pipe_l = 0.2, 0.03, 0.15, 0.1
+    center = np.array([0.5, 0.5, 0.5])
+    mesh = funnel(top, pipe, cone_h, pipe_l, center=center, segments=40)
+    local = mesh.vertices - center
+    r = np.hypot(local[:, 0], local[:, 2])
+    y0 = -(cone_h + pipe_l) / 2
+    in_pipe = local[:, 1] <= y0 + pipe_l + 1e-12
+    np.testing.assert_allclose(r[in_pipe], pipe, rtol=1e-12)
+    np.testing.assert_allclose(r[np.isclose(local[:, 1], -y0)], top, rtol=1e-12)
+    np.testing.assert_allclose(mesh.bounds[:, 1], center[1] + np.array([y0, -y0]))
+    # cone radius grows linearly with height
+    cone = ~in_pipe
+    expected = pipe + (top - pipe) * (local[cone, 1] - (y0 + pipe_l)) / cone_h
+    np.testing.assert_allclose(r[cone], expected, rtol=1e-9)
+    # open at both ends: the top rim and the pipe outlet
+    loops = boundary_loops(mesh)
+    assert len(loops) == 2
+    assert sorted(np.round([r[lp].mean() for lp in loops], 12)) == [pipe, top]
+    placed = funnel(top, pipe, cone_h, pipe_l, center=center, segments=40, rotation_deg=(90, 0, 0))
+    base = funnel(top, pipe, cone_h, pipe_l, segments=40)
+    np.testing.assert_allclose(placed.vertices, base.vertices @ euler_matrix((90, 0, 0)).T + center, atol=1e-12)
+
+
+def test_boundary_edges_of_closed_and_open_meshes():
+    box = trimesh.creation.box()
+    assert mesh_boundary_edges(box).shape == (0, 2) and not is_open(box)
+    tri = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    edges = mesh_boundary_edges(tri)
+    assert sorted(map(tuple, edges.tolist())) == [(0, 1), (0, 2), (1, 2)]
+    assert is_open(tri)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: sheet((0.0, 1.0)),
+        lambda: sheet((1.0, 1.0), resolution=0),
+        lambda: thin_box((1.0, -0.1, 1.0)),
+        lambda: blade(1.0, 1.0, -0.1),
+        lambda: hourglass(1.0, 0.1, 0.2),
+        lambda: funnel(0.2, 0.05, 0.0, 0.1),
+        lambda: sheet((1.0, 1.0), center=(0, 0)),
+    ],
+)
+def test_invalid_arguments_raise(call):
+    with pytest.raises(ValueError):
+        call()
