@@ -45,6 +45,9 @@ NODE_BAND = 3.5  # cells: nodes this close to a surface get a colour (stencil re
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
 CONTACT_BAND = 1.0  # cells: nodes this close get the collider's boundary condition
 FAR = 1.0e10
+# cells: closer than this a point is on the surface; its direction from the closest
+# point is float32 noise, so the face normal stands in for it
+ON_SURFACE = 1.0e-3
 
 
 @wp.struct
@@ -162,7 +165,7 @@ def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3):
         c.cp = wp.mesh_eval_position(spec.mesh, q.face, q.u, q.v)
         d = x - c.cp
         dl = wp.length(d)
-        if dl > 1.0e-6 * g.dx:
+        if dl > ON_SURFACE * g.dx:
             c.cn = d / dl
         else:
             c.cn = wp.mesh_eval_face_normal(spec.mesh, q.face)
@@ -196,7 +199,7 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
     q = wp.mesh_query_ray(spec.mesh, start, dirn, L)
     if q.result:
         out.hit = 1
-        out.x = start + wp.max(q.t - 1.0e-3 * g.dx, 0.0) * dirn
+        out.x = start + wp.max(q.t - 5.0 * ON_SURFACE * g.dx, 0.0) * dirn  # clear of the on-surface zone
         out.n = q.normal
         if wp.dot(q.normal, dirn) > 0.0:
             out.n = -q.normal
@@ -230,7 +233,7 @@ def build_colour_field(spec: CollisionSpec, g: GridSpec, lo: wp.vec3i, f: Colour
         d = xi - cpt
         dl = wp.length(d)
         f.dist[i, j, k] = dl
-        if dl > 1.0e-6 * g.dx:
+        if dl > ON_SURFACE * g.dx:
             f.dir[i, j, k] = d / dl
         else:
             f.dir[i, j, k] = wp.mesh_eval_face_normal(spec.mesh, q.face)
