@@ -17,6 +17,7 @@ from .scene.model import (
     Viscoelastic,
     Walls,
 )
+from .scene.loader import list_builtin_scenes, load_scene
 from .simulation import Particles, Simulation
 
 __version__ = "0.1.0"
@@ -25,5 +26,5 @@ __all__ = [
     "AbmpmError", "MeshError", "OutputError", "SceneError", "SimulationBlowUp",
     "BoxBody", "BunnyBody", "Elastic", "EllipsoidBody", "Fluid", "MeshBody", "Output", "Sand",
     "Scene", "SimulationSettings", "Snow", "SphereBody", "Viscoelastic", "Walls",
-    "Particles", "Simulation",
+    "Particles", "Simulation", "load_scene", "list_builtin_scenes",
 ]

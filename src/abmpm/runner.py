@@ -7,7 +7,7 @@
         frames/frame_00000.ply ...      particles every output.frame_every frames
         checkpoints/checkpoint_00015.npz  every output.checkpoint_every frames and at the end
         summary.json                    run statistics and per-frame diagnostics
-        energy.png                      kinetic energy, mass and momentum over time
+        energy.png                      kinetic, potential and total energy; mass and momentum
         preview.mp4, preview.png        a rendered preview and its poster frame
         particles.usd                   (output.usd = true) time-sampled USD points
 
@@ -51,7 +51,7 @@ PREVIEW_SIZE = (640, 480)
 
 _FRAME_RE = re.compile(r"^frame_(\d+)\.ply$")
 _CKPT_RE = re.compile(r"^checkpoint_(\d+)\.npz$")
-_SERIES = ("time", "kinetic_energy", "total_mass", "momentum", "max_speed", "count_per_level")
+_SERIES = ("time", "kinetic_energy", "potential_energy", "total_mass", "momentum", "max_speed", "count_per_level")
 
 
 def frame_path(out_dir: str | os.PathLike, frame: int) -> Path:

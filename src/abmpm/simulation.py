@@ -10,6 +10,7 @@ geometry's mesh loading of the scene's bodies.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,8 @@ _warp_ready = False
 def init_warp() -> None:
     global _warp_ready
     if not _warp_ready:
+        if not os.environ.get("ABMPM_VERBOSE") and hasattr(wp, "LOG_WARNING"):
+            wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no module-load chatter
         wp.config.quiet = True
         wp.init()
         _warp_ready = True
@@ -232,7 +235,7 @@ class Simulation:
     # ------------------------------------------------------------------ inspection
 
     def _diagnostics(self, snap: dict[str, np.ndarray]) -> dict:
-        d = frame_diagnostics(snap, {0: self.dx})
+        d = frame_diagnostics(snap, {0: self.dx}, self.scene.simulation.gravity)
         d.update(frame=self.frame, time=self.frame * self.frame_dt, steps=self.steps, dt=self.dt)
         return d
 
@@ -246,9 +249,24 @@ class Simulation:
         fields = {k: arrays[k] for k in Particles.__dataclass_fields__ if k != "J"}
         return Particles(J=J, **fields)
 
+    def collider_triangles(self, time: float | None = None) -> np.ndarray:
+        """(M, 3, 3) world-space collider triangles at ``time`` (default: now); empty
+        without colliders. For rendering and export."""
+        c = self.solver.colliders
+        if c is None:
+            return np.zeros((0, 3, 3))
+        return c.triangles(self.time if time is None else time)
+
+    def collider_faces(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(vertices at the current time, faces, body index per face) of all colliders."""
+        c = self.solver.colliders
+        if c is None:
+            return None
+        return c.vertices(self.time), c.faces
+
     def diagnostics(self) -> dict:
         """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""
-        d = frame_diagnostics(self._state.numpy(), {0: self.dx})
+        d = frame_diagnostics(self._state.numpy(), {0: self.dx}, self.scene.simulation.gravity)
         d.update(frame=self.frame, time=self.time, steps=self.steps, dt=self.dt)
         return d
 

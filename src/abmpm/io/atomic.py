@@ -29,6 +29,10 @@ def atomic_write(path: str | os.PathLike) -> Iterator[Path]:
         raise OutputError(f"cannot write to {path.parent}: {exc}") from exc
     os.close(fd)
     tmp = Path(tmp_name)
+    # mkstemp makes the file private (0600); outputs get the usual umask-based mode
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield tmp
         os.replace(tmp, path)

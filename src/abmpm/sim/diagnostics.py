@@ -16,7 +16,7 @@ def affine_angular_momentum(mass: np.ndarray, C: np.ndarray, dx: float) -> np.nd
     return (mass[:, None] * skew).sum(axis=0) * (dx * dx / 4.0)
 
 
-def frame_diagnostics(s: dict[str, np.ndarray], dx_of_level: dict[int, float]) -> dict:
+def frame_diagnostics(s: dict[str, np.ndarray], dx_of_level: dict[int, float], gravity=(0.0, -9.81, 0.0)) -> dict:
     m = s["mass"].astype(np.float64)
     x = s["x"].astype(np.float64)
     v = s["v"].astype(np.float64)
@@ -34,6 +34,8 @@ def frame_diagnostics(s: dict[str, np.ndarray], dx_of_level: dict[int, float]) -
         "momentum": p.sum(axis=0).tolist(),
         "angular_momentum": L.tolist(),
         "kinetic_energy": float(0.5 * (m * speed * speed).sum()),
+        # relative to the origin: only its changes mean something
+        "potential_energy": float(-(m * (x @ np.asarray(gravity, dtype=np.float64))).sum()),
         "max_speed": float(speed.max()) if len(speed) else 0.0,
         "count": int(len(m)),
         "count_per_level": [int(c) for c in levels],
