@@ -110,7 +110,7 @@ def _print_summary(s: dict, out: Path) -> None:
         + f" on {s['device']} in {s['wall_seconds']:.1f} s"
     )
     outputs = s.get("outputs", {})
-    for key in ("preview", "poster", "energy_plot", "frames", "checkpoints", "usd", "summary"):
+    for key in ("preview", "poster", "energy_plot", "frames", "colliders", "checkpoints", "usd", "summary"):
         if key in outputs:
             con.print(f"  {key:<12} {out / outputs[key]}")
 

@@ -5,6 +5,7 @@
     out/dam_break/
         scene.json                      the validated scene (used by resume and render)
         frames/frame_00000.ply ...      particles every output.frame_every frames
+        colliders/collider_00000.ply    (scenes with colliders) their triangles at that frame
         checkpoints/checkpoint_00015.npz  every output.checkpoint_every frames and at the end
         summary.json                    run statistics and per-frame diagnostics
         energy.png                      kinetic, potential and total energy; mass and momentum
@@ -32,14 +33,15 @@ import numpy as np
 
 from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
 from abmpm.io.checkpoint import checkpoint_name, latest_checkpoint, load_checkpoint, save_checkpoint
-from abmpm.io.ply import read_particles_ply, write_particles_ply
+from abmpm.io.ply import read_mesh_ply, read_particles_ply, write_mesh_ply, write_particles_ply
 from abmpm.io.summary import write_json
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
 
-__all__ = ["run", "render_folder", "total_frames", "frame_path"]
+__all__ = ["run", "render_folder", "total_frames", "frame_path", "collider_path"]
 
 FRAMES_DIR = "frames"
+COLLIDERS_DIR = "colliders"
 CHECKPOINTS_DIR = "checkpoints"
 SCENE_FILE = "scene.json"
 SUMMARY_FILE = "summary.json"
@@ -50,12 +52,18 @@ USD_FILE = "particles.usd"
 PREVIEW_SIZE = (640, 480)
 
 _FRAME_RE = re.compile(r"^frame_(\d+)\.ply$")
+_COLLIDER_RE = re.compile(r"^collider_(\d+)\.ply$")
 _CKPT_RE = re.compile(r"^checkpoint_(\d+)\.npz$")
 _SERIES = ("time", "kinetic_energy", "potential_energy", "total_mass", "momentum", "max_speed", "count_per_level")
 
 
 def frame_path(out_dir: str | os.PathLike, frame: int) -> Path:
     return Path(out_dir) / FRAMES_DIR / f"frame_{frame:05d}.ply"
+
+
+def collider_path(out_dir: str | os.PathLike, frame: int) -> Path:
+    """Triangle mesh (binary PLY) of all the scene's colliders at output frame ``frame``."""
+    return Path(out_dir) / COLLIDERS_DIR / f"collider_{frame:05d}.ply"
 
 
 def total_frames(scene: Scene, frames: int | None = None) -> int:
@@ -107,6 +115,7 @@ def _numbered(folder: Path, pattern: re.Pattern) -> list[tuple[int, Path]]:
 def _clean_previous_run(out: Path) -> None:
     """Remove the outputs of an earlier run in ``out`` (only files abmpm writes)."""
     victims = [p for _, p in _numbered(out / FRAMES_DIR, _FRAME_RE)]
+    victims += [p for _, p in _numbered(out / COLLIDERS_DIR, _COLLIDER_RE)]
     victims += [p for _, p in _numbered(out / CHECKPOINTS_DIR, _CKPT_RE)]
     victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE)]
     for p in victims:
@@ -183,10 +192,64 @@ def _colors(frame: dict, scene: Scene, vmax: float | None) -> np.ndarray:
 
 
 def _disk_frames(out: Path, last: int | None = None) -> list[tuple[int, Callable[[], dict]]]:
+    """[(frame, loader)] of the particle PLYs in ``out``; a loader returns the frame's
+    arrays plus ``"triangles"`` (M, 3, 3) when the frame has a collider PLY."""
     frames = _numbered(out / FRAMES_DIR, _FRAME_RE)
     if last is not None:
         frames = [(n, p) for n, p in frames if n <= last]
-    return [(n, (lambda p=p: read_particles_ply(p))) for n, p in frames]
+    colliders = dict(_numbered(out / COLLIDERS_DIR, _COLLIDER_RE))
+
+    def load(p: Path, c: Path | None) -> dict:
+        f = read_particles_ply(p)
+        if c is not None:
+            v, faces = read_mesh_ply(c)
+            f["triangles"] = v[faces]
+        return f
+
+    return [(n, (lambda p=p, c=colliders.get(n): load(p, c))) for n, p in frames]
+
+
+class _ColliderTrack:
+    """Collider vertices of every output frame, kept while the simulation runs.
+
+    The faces never change, so a frame stores only its (V, 3) float32 vertices, and a
+    frame whose colliders have not moved shares the previous frame's array.
+    """
+
+    def __init__(self, sim):
+        got = sim.collider_faces()
+        self.faces = None if got is None else np.asarray(got[1], dtype=np.int64)
+        self.vertices: dict[int, np.ndarray] = {}
+        self._last: np.ndarray | None = None
+
+    def __bool__(self) -> bool:
+        return self.faces is not None
+
+    def record(self, sim) -> np.ndarray:
+        v = np.asarray(sim.collider_faces()[0], dtype=np.float32)
+        if self._last is not None and np.array_equal(v, self._last):
+            v = self._last
+        self._last = v
+        self.vertices[sim.frame] = v
+        return v
+
+    def triangles(self, frame: int) -> np.ndarray | None:
+        v = self.vertices.get(frame)
+        return None if v is None else v[self.faces]
+
+    def attach(self, source):
+        """Add this track's triangles to the frames of ``source`` that it has."""
+        if not self:
+            return source
+
+        def load(n, inner):
+            f = dict(inner())
+            tris = self.triangles(n)
+            if tris is not None:
+                f["triangles"] = tris
+            return f
+
+        return [(n, (lambda n=n, inner=inner: load(n, inner))) for n, inner in source]
 
 
 def _speed_vmax(source) -> float:
@@ -218,7 +281,10 @@ def _render_preview(
     def images() -> Iterator[np.ndarray]:
         for n, load in source:
             f = load()
-            img = render(f["x"], _colors(f, scene, vmax), camera, _radius(f, densities), box=box)
+            img = render(
+                f["x"], _colors(f, scene, vmax), camera, _radius(f, densities), box=box,
+                triangles=f.get("triangles"),
+            )
             v = f["v"].astype(np.float64)
             ke = float(0.5 * (f["mass"].astype(np.float64) * (v * v).sum(axis=1)).sum())
             if not math.isfinite(ke):
@@ -248,7 +314,8 @@ def _write_usd(out: Path, scene: Scene, source) -> None:
 
 
 def render_folder(out_dir: str | os.PathLike, progress: bool = False) -> dict:
-    """Re-render ``preview.mp4`` / ``preview.png`` of a finished run from its PLY frames."""
+    """Re-render ``preview.mp4`` / ``preview.png`` of a finished run from its PLY frames
+    (and the collider PLYs next to them, when the scene has colliders)."""
     out = Path(out_dir)
     if not out.is_dir():
         raise OutputError(f"{out}: no such output folder")
@@ -410,6 +477,7 @@ def run(
     write_json(out / SCENE_FILE, scene.model_dump(mode="json"))
 
     kept: list[tuple[int, dict]] = []  # host frames for the preview when no PLY is written
+    colliders = _ColliderTrack(sim)  # collider vertices of every output frame
     state = {"last_ckpt": resumed_from, "io_seconds": 0.0}
 
     def save_frame(force: bool = False) -> None:
@@ -417,6 +485,10 @@ def run(
         if not (force or n % out_cfg.frame_every == 0):
             return
         p = _host_particles(sim)
+        if colliders:
+            verts = colliders.record(sim)
+            if out_cfg.frames:
+                write_mesh_ply(collider_path(out, n), verts, colliders.faces)
         if out_cfg.frames:
             write_particles_ply(frame_path(out, n), p.x, _frame_attributes(p))
         elif preview and out_cfg.preview or out_cfg.usd:
@@ -499,6 +571,8 @@ def run(
             outputs = {"scene": SCENE_FILE, "summary": SUMMARY_FILE}
             if _numbered(out / FRAMES_DIR, _FRAME_RE):
                 outputs["frames"] = f"{FRAMES_DIR}/frame_NNNNN.ply"
+            if _numbered(out / COLLIDERS_DIR, _COLLIDER_RE):
+                outputs["colliders"] = f"{COLLIDERS_DIR}/collider_NNNNN.ply"
             if _numbered(out / CHECKPOINTS_DIR, _CKPT_RE):
                 outputs["checkpoints"] = f"{CHECKPOINTS_DIR}/checkpoint_NNNNN.npz"
             if status != "interrupted":
@@ -511,6 +585,7 @@ def run(
                 source = _disk_frames(out, last) if out_cfg.frames else [
                     (n, (lambda f=f: f)) for n, f in kept if n <= last
                 ]
+                source = colliders.attach(source)  # frames of this run: no need to read them back
                 if preview and out_cfg.preview and source:
                     fps = scene.simulation.fps / out_cfg.frame_every
                     bar.start_render(len(source))

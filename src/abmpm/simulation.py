@@ -117,13 +117,22 @@ def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
 class Simulation:
     """A running simulation of a :class:`~abmpm.scene.model.Scene`."""
 
-    def __init__(self, scene: Scene, device: str | None = None):
+    def __init__(self, scene: Scene, device: str | None = None, mode: str | None = None):
         init_warp()
-        self.scene = scene
         st = scene.simulation
+        self.mode = mode or st.refinement.mode
+        if self.mode not in ("original", "adaptive", "finest"):
+            raise AbmpmError(f"unknown mode {self.mode!r} (use original, adaptive or finest)")
+        b = st.refinement.factor
+        if self.mode == "finest":
+            # the whole domain at dx/b, particles sampled at the fine spacing
+            st = st.model_copy(update={"dx": st.dx / b})
+            scene = scene.model_copy(update={"simulation": st})
+        self.scene = scene
         self.device = choose_device(device if device is not None else st.device)
         self.frame_dt = 1.0 / st.fps
-        self.dx = st.dx
+        self.dx = st.dx  # spacing of the coarsest grid
+        self.fine_dx = st.dx / b if self.mode == "adaptive" else st.dx  # the CFL spacing
         colliders = None
         if scene.colliders:
             meshes = [collider_mesh(c, scene.resolve, f"colliders[{i}]") for i, c in enumerate(scene.colliders)]
@@ -134,13 +143,20 @@ class Simulation:
             SolverConfig(
                 domain_lo=st.domain_min, domain_hi=st.domain_max, dx=st.dx, gravity=st.gravity,
                 walls={f: st.walls.face(f) for f in FACES},
+                refine_factor=b if self.mode == "adaptive" else None,
+                base_level=1 if self.mode == "finest" else 0,
             ),
             [material_params(m) for m in scene.materials],
             self.device,
             colliders,
         )
         arrays = sample_scene(scene)
+        if self.mode == "finest":
+            arrays["level"][:] = 1
         self._load_arrays(arrays)
+        self.solver.next_id = len(arrays["x"])
+        if self.mode == "adaptive":
+            self.solver.set_region(self.refinement_cells(), self._state)
         self.frame = 0
         self.substep = 0
         self.steps = 0
@@ -160,9 +176,23 @@ class Simulation:
         """CFL on the grid spacing with the wave speed plus the fastest particle, capped
         by max_dt, then shortened so that a whole number of substeps fills a frame."""
         st = self.scene.simulation
-        dt = min(st.max_dt, st.cfl * self.dx / (self.wave_speed + max_speed))
+        dt = min(st.max_dt, st.cfl * self.fine_dx / (self.wave_speed + max_speed))
         self.substeps = max(1, math.ceil(self.frame_dt / dt - 1e-9))
         self.dt = self.frame_dt / self.substeps
+
+    def refinement_cells(self) -> np.ndarray:
+        """Refined coarse cells B_s now: boundary density of the colliders marked for
+        refinement (Eqs. 26-27) plus the scene's boxes."""
+        from .sim.region import RegionParams, refinement_region
+        r = self.scene.simulation.refinement
+        g = self.solver.grid
+        origin = np.array([g.spec.origin[a] for a in range(3)], dtype=np.float64)
+        params = RegionParams(bandwidth=r.bandwidth, threshold=r.threshold, halo=r.halo, boxes=tuple(r.boxes))
+        c = self.solver.colliders
+        meshes = c.body_meshes() if c is not None else []
+        flags = [spec.refine for spec in self.scene.colliders]
+        cells, _ = refinement_region(meshes, flags, origin, g.dx, np.array(g.dims), params)
+        return cells
 
     @property
     def time(self) -> float:
@@ -235,9 +265,13 @@ class Simulation:
     # ------------------------------------------------------------------ inspection
 
     def _diagnostics(self, snap: dict[str, np.ndarray]) -> dict:
-        d = frame_diagnostics(snap, {0: self.dx}, self.scene.simulation.gravity)
+        d = frame_diagnostics(snap, self._level_dx, self.scene.simulation.gravity)
         d.update(frame=self.frame, time=self.frame * self.frame_dt, steps=self.steps, dt=self.dt)
         return d
+
+    @property
+    def _level_dx(self) -> dict[int, float]:
+        return {g.level: g.dx for g in self.solver.grids}
 
     def particles(self) -> Particles:
         return self._particles(self._state.numpy())
@@ -266,7 +300,7 @@ class Simulation:
 
     def diagnostics(self) -> dict:
         """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""
-        d = frame_diagnostics(self._state.numpy(), {0: self.dx}, self.scene.simulation.gravity)
+        d = frame_diagnostics(self._state.numpy(), self._level_dx, self.scene.simulation.gravity)
         d.update(frame=self.frame, time=self.time, steps=self.steps, dt=self.dt)
         return d
 

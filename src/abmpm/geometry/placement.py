@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from ..errors import SceneError
 from . import colliders as procedural
 from .meshes import load_mesh
 from .transforms import euler_matrix
@@ -42,5 +43,8 @@ def collider_mesh(spec, resolve=lambda p: p, where: str = "colliders[0]") -> tri
             mesh.apply_transform(np.diag([*scale, 1.0]))
     else:
         make, keys = _PROCEDURAL[spec.shape]
-        mesh = make(**{k: getattr(spec, k) for k in keys})
+        try:
+            mesh = make(**{k: getattr(spec, k) for k in keys})
+        except ValueError as exc:  # e.g. an hourglass neck wider than its bulbs
+            raise SceneError(f"{where}: {exc}") from None
     return place(mesh, spec.center, spec.rotation)

@@ -111,3 +111,38 @@ def read_particles_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
             out[name] = np.asarray(data[name]).copy()
             used.add(name)
     return out
+
+
+def write_mesh_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Write a triangle mesh as a binary little-endian PLY (via trimesh, atomic).
+
+    ``vertices`` (V, 3) are stored as float32, ``faces`` (F, 3) as int32 vertex
+    indices; the order of both is kept, so files of the same collider at different
+    times share the face list and can be loaded as a deforming mesh.
+    """
+    import trimesh
+
+    path = Path(path)
+    v = np.ascontiguousarray(vertices, dtype=np.float32)
+    f = np.ascontiguousarray(faces, dtype=np.int32)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise OutputError(f"{path}: expected (V, 3) vertices and (F, 3) faces, got {v.shape} and {f.shape}")
+    mesh = trimesh.Trimesh(vertices=v, faces=f, process=False, validate=False)
+    data = mesh.export(file_type="ply", encoding="binary")
+    with atomic_write(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def read_mesh_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle mesh PLY written by :func:`write_mesh_ply`: ``(vertices, faces)``
+    as float64 (V, 3) and int64 (F, 3), in file order."""
+    import trimesh
+
+    path = Path(path)
+    try:
+        mesh = trimesh.load(str(path), file_type="ply", process=False, force="mesh")
+    except Exception as exc:  # trimesh raises many types for a corrupt file
+        raise OutputError(f"cannot read PLY mesh {path}: {type(exc).__name__}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise OutputError(f"cannot read PLY mesh {path}: no triangles in the file")
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)

@@ -46,7 +46,8 @@ def _tags(union) -> list[str]:
 
 MATERIAL_MODELS = _tags(sm.Material)
 BODY_SHAPES = _tags(sm.Body)
-_TAGS = set(MATERIAL_MODELS) | set(BODY_SHAPES)
+COLLIDER_SHAPES = _tags(sm.Collider)
+_TAGS = set(MATERIAL_MODELS) | set(BODY_SHAPES) | set(COLLIDER_SHAPES)
 # pydantic labels union members in the location of an error ('float', 'tuple[...]')
 _UNION_LABELS = {"float", "int", "str", "bool", "none", "list", "dict", "tuple"}
 
@@ -238,7 +239,12 @@ def _message(err: dict) -> tuple[str, str]:
         return path, "required key missing"
     if typ in ("union_tag_invalid", "union_tag_not_found"):
         disc = ctx.get("discriminator", "").strip("'") or "model"
-        choices = ", ".join(MATERIAL_MODELS if disc == "model" else BODY_SHAPES)
+        if disc == "model":
+            choices = ", ".join(MATERIAL_MODELS)
+        elif loc and loc[0] == "colliders":
+            choices = ", ".join(COLLIDER_SHAPES)
+        else:
+            choices = ", ".join(BODY_SHAPES)
         if typ == "union_tag_not_found":
             if not isinstance(value, dict):
                 return path, f"expected a table, got {_got(value)}"

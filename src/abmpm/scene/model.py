@@ -58,6 +58,24 @@ class Walls(_Strict):
         return (f.type or self.type, self.friction if f.friction is None else f.friction)
 
 
+class Refinement(_Strict):
+    """Adaptive boundary refinement (paper Sections 3.2, 4.2, 5.2)."""
+
+    mode: Literal["original", "adaptive", "finest"] = Field(
+        "original", description="original: coarse grid only; adaptive: refine near boundaries; finest: all fine"
+    )
+    factor: int = Field(2, ge=2, le=4, description="b: the fine grid spacing is dx / b")
+    threshold: float = Field(1.5, gt=0, description="boundary density above which coarse cells are refined")
+    bandwidth: float = Field(1.0, gt=0, description="Gaussian bandwidth h of the density, in coarse cells")
+    halo: int = Field(1, ge=0, description="refined cells grow by this many coarse cells")
+    boxes: list[tuple[Vec3, Vec3]] = Field(default_factory=list, description="extra boxes to refine, [min, max]")
+
+    @property
+    def split_count(self) -> int:
+        """N_s = b^3 children per split particle."""
+        return self.factor**3
+
+
 class SimulationSettings(_Strict):
     domain_min: Vec3 = (0.0, 0.0, 0.0)
     domain_max: Vec3 = (1.0, 1.0, 1.0)
@@ -70,6 +88,7 @@ class SimulationSettings(_Strict):
     seed: int = 0
     device: str | None = Field(None, description="'cpu', 'cuda' or 'cuda:N'; default: cuda when available")
     walls: Walls = Walls()
+    refinement: Refinement = Refinement()
     cpic: bool = Field(
         True, description="compatible transfers at colliders; false: plain grid boundary (leaks through thin sheets)"
     )

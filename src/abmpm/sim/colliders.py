@@ -39,7 +39,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..geometry.transforms import euler_matrix
 from .boundary import BOUNDARY_IDS, boundary_response
-from .grid import Grid, GridSpec
+from .grid import BLOCK_NODES, Grid, GridSpec, node_coords, node_index, node_position
 
 NODE_BAND = 3.5  # cells: nodes this close to a surface get a colour (stencil reach 1.5 sqrt(3) ~ 2.6)
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
@@ -73,9 +73,9 @@ class CollisionSpec:
 class ColourField:
     """Colour distance field on the nodes of one grid."""
 
-    dist: wp.array3d(dtype=float)
-    dir: wp.array3d(dtype=wp.vec3)
-    body: wp.array3d(dtype=wp.int32)
+    dist: wp.array(dtype=float)  # flat, indexed like the grid's nodes
+    dir: wp.array(dtype=wp.vec3)
+    body: wp.array(dtype=wp.int32)
 
 
 @wp.func
@@ -85,15 +85,14 @@ def rigid_velocity(b: ColliderBody, x: wp.vec3):
 
 
 @wp.func
-def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, xi: wp.vec3,
-               i: int, j: int, k: int):
-    """May particle p exchange momentum with node (i, j, k)? (see module docstring)"""
-    if cbody < 0:
-        return True  # particle far from every surface (or plain grid-boundary mode)
-    if f.body[i, j, k] < 0:
+def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, xi: wp.vec3, n: int):
+    """May particle p exchange momentum with node n at xi? (see module docstring)"""
+    if cbody < 0 or n < 0:
+        return True  # particle far from every surface, or an inactive node
+    if f.body[n] < 0:
         return True  # node far from every surface
-    ni = f.dir[i, j, k]
-    ci = xi - f.dist[i, j, k] * ni
+    ni = f.dir[n]
+    ci = xi - f.dist[n] * ni
     return not (wp.dot(xi - cp, cn) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
 
 
@@ -109,7 +108,7 @@ def compatibility_mask(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: Col
         for j in range(3):
             for k in range(3):
                 xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                if compatible(cp, cn, cbody, xp, f, xi, base[0] + i, base[1] + j, base[2] + k):
+                if compatible(cp, cn, cbody, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k)):
                     mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
@@ -121,15 +120,13 @@ def node_bit(mask: int, i: int, j: int, k: int):
 
 
 @wp.func
-def node_contact(spec: CollisionSpec, f: ColourField, g: GridSpec, v: wp.vec3, xi: wp.vec3,
-                 i: int, j: int, k: int):
+def node_contact(spec: CollisionSpec, f: ColourField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
     """Boundary condition of the nearest collider on a node within CONTACT_BAND cells."""
-    b = f.body[i, j, k]
-    if b < 0 or f.dist[i, j, k] > CONTACT_BAND * g.dx:
+    b = f.body[n]
+    if b < 0 or f.dist[n] > CONTACT_BAND * g.dx:
         return v
     body = spec.bodies[b]
-    return boundary_response(v, rigid_velocity(body, xi), f.dir[i, j, k], body.boundary, body.friction,
-                             body.separation)
+    return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)
 
 
 @wp.func
@@ -150,10 +147,10 @@ class Colour:
 def near_surface(f: ColourField, g: GridSpec, x: wp.vec3):
     # cheap filter: the particle's nearest node carries a colour
     X = (x - g.origin) * g.inv_dx
-    i = int(X[0] + 0.5)
-    j = int(X[1] + 0.5)
-    k = int(X[2] + 0.5)
-    return f.body[i, j, k] >= 0
+    n = node_index(g, int(X[0] + 0.5), int(X[1] + 0.5), int(X[2] + 0.5))
+    if n < 0:
+        return False
+    return f.body[n] >= 0
 
 
 @wp.func
@@ -208,9 +205,12 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
 
 
 @wp.kernel
-def colour_particles(x: wp.array(dtype=wp.vec3), spec: CollisionSpec, g: GridSpec, f: ColourField,
+def colour_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), spec: CollisionSpec,
+                     g: GridSpec, f: ColourField,
                      cp: wp.array(dtype=wp.vec3), cn: wp.array(dtype=wp.vec3), cbody: wp.array(dtype=wp.int32)):
     p = wp.tid()
+    if level[p] != g.level:
+        return
     c = Colour()
     c.body = -1
     if spec.cpic != 0 and near_surface(f, g, x[p]):
@@ -220,28 +220,39 @@ def colour_particles(x: wp.array(dtype=wp.vec3), spec: CollisionSpec, g: GridSpe
     cbody[p] = c.body
 
 
-@wp.kernel
-def build_colour_field(spec: CollisionSpec, g: GridSpec, lo: wp.vec3i, f: ColourField):
-    a, b, c = wp.tid()
-    i = lo[0] + a
-    j = lo[1] + b
-    k = lo[2] + c
-    xi = g.origin + wp.vec3(float(i), float(j), float(k)) * g.dx
+@wp.func
+def colour_node(spec: CollisionSpec, g: GridSpec, f: ColourField, n: int, c: wp.vec3i):
+    xi = node_position(g, c)
     q = wp.mesh_query_point_no_sign(spec.mesh, xi, NODE_BAND * g.dx)
     if q.result:
         cpt = wp.mesh_eval_position(spec.mesh, q.face, q.u, q.v)
         d = xi - cpt
         dl = wp.length(d)
-        f.dist[i, j, k] = dl
+        f.dist[n] = dl
         if dl > ON_SURFACE * g.dx:
-            f.dir[i, j, k] = d / dl
+            f.dir[n] = d / dl
         else:
-            f.dir[i, j, k] = wp.mesh_eval_face_normal(spec.mesh, q.face)
-        f.body[i, j, k] = spec.face_body[q.face]
+            f.dir[n] = wp.mesh_eval_face_normal(spec.mesh, q.face)
+        f.body[n] = spec.face_body[q.face]
     else:
-        f.dist[i, j, k] = FAR
-        f.dir[i, j, k] = wp.vec3(0.0)
-        f.body[i, j, k] = -1
+        f.dist[n] = FAR
+        f.dir[n] = wp.vec3(0.0)
+        f.body[n] = -1
+
+
+@wp.kernel
+def colour_node_box(spec: CollisionSpec, g: GridSpec, lo: wp.vec3i, f: ColourField):
+    # dense grid: the nodes of an index box
+    a, b, c = wp.tid()
+    node = wp.vec3i(lo[0] + a, lo[1] + b, lo[2] + c)
+    colour_node(spec, g, f, node_index(g, node[0], node[1], node[2]), node)
+
+
+@wp.kernel
+def colour_node_range(spec: CollisionSpec, g: GridSpec, first: int, f: ColourField):
+    # sparse grid: a range of storage indices (whole blocks)
+    n = first + wp.tid()
+    colour_node(spec, g, f, n, node_coords(g, n))
 
 
 @wp.kernel
@@ -332,7 +343,8 @@ class ColliderSet:
         self.spec.enabled = 1
         self.spec.cpic = int(cpic)
         self.spec.mesh = self.mesh.id
-        self.spec.face_body = wp.array(np.concatenate(fbody), dtype=wp.int32, device=device)
+        self.face_body_host = np.concatenate(fbody)
+        self.spec.face_body = wp.array(self.face_body_host, dtype=wp.int32, device=device)
         self.time = None
         self._region = {}  # grid id -> node box last coloured
         self.set_time(0.0)
@@ -376,6 +388,12 @@ class ColliderSet:
             out[sel] = self.rest[sel] @ p.rotation.T + p.offset
         return out
 
+    def body_meshes(self, t: float | None = None) -> list[trimesh.Trimesh]:
+        """One world-space mesh per collider at time t (default: the current pose)."""
+        v = self.vertices(t)
+        fb = self.face_body_host
+        return [trimesh.Trimesh(v, self.faces[fb == b], process=False) for b in range(len(self.specs))]
+
     def triangles(self, t: float | None = None) -> np.ndarray:
         """(M, 3, 3) world-space triangles, for rendering."""
         return self.vertices(t)[self.faces]
@@ -390,20 +408,26 @@ class ColliderSet:
         dims = np.array(grid.dims)
         return np.clip(lo, 0, dims), np.clip(hi, 0, dims)
 
-    def colour(self, grid: Grid, field: ColourField) -> None:
-        """(Re)build the colour distance field of a grid around the colliders."""
+    def colour(self, grid: Grid, first_slot: int = 0) -> None:
+        """(Re)build the colour distance field of a grid around the colliders: on a
+        dense grid the node box around them (and what they covered before they
+        moved), on a sparse grid the active blocks from ``first_slot`` on."""
+        if grid.sparse:
+            count = (grid.active_slots - first_slot) * BLOCK_NODES
+            if count > 0:
+                wp.launch(colour_node_range, dim=count, inputs=[self.spec, grid.spec, first_slot * BLOCK_NODES],
+                          outputs=[grid.colour], device=self.device)
+            return
         lo, hi = self.node_box(grid)
-        prev = self._region.get(id(field))
-        if prev is not None:  # clear what the colliders covered before they moved
-            plo = np.minimum(prev[0], lo)
-            phi = np.maximum(prev[1], hi)
-            lo, hi = plo, phi
-        self._region[id(field)] = (lo, hi)
+        prev = self._region.get(id(grid))
+        if prev is not None:
+            lo, hi = np.minimum(prev[0], lo), np.maximum(prev[1], hi)
+        self._region[id(grid)] = (lo, hi)
         shape = tuple(int(s) for s in hi - lo)
         if min(shape) <= 0:
             return
-        wp.launch(build_colour_field, dim=shape, inputs=[self.spec, grid.spec, wp.vec3i(*[int(a) for a in lo])],
-                  outputs=[field], device=self.device)
+        wp.launch(colour_node_box, dim=shape, inputs=[self.spec, grid.spec, wp.vec3i(*[int(a) for a in lo])],
+                  outputs=[grid.colour], device=self.device)
 
 
 def empty_spec(device) -> CollisionSpec:
@@ -416,10 +440,21 @@ def empty_spec(device) -> CollisionSpec:
     return s
 
 
-def colour_field(dims, device) -> ColourField:
+def colour_field(n: int, device) -> ColourField:
+    """Colour field for n nodes of storage, all far from every collider."""
     f = ColourField()
-    f.dist = wp.full(dims, FAR, dtype=float, device=device)
-    f.dir = wp.zeros(dims, dtype=wp.vec3, device=device)
-    f.body = wp.full(dims, -1, dtype=wp.int32, device=device)
+    f.dist = wp.full(n, FAR, dtype=float, device=device)
+    f.dir = wp.zeros(n, dtype=wp.vec3, device=device)
+    f.body = wp.full(n, -1, dtype=wp.int32, device=device)
     return f
+
+
+def grow_colour_field(f: ColourField, n: int) -> ColourField:
+    """A colour field with room for n nodes, keeping the existing entries."""
+    if f.dist.shape[0] >= n:
+        return f
+    g = colour_field(n, f.dist.device)
+    for name in ("dist", "dir", "body"):
+        wp.copy(getattr(g, name), getattr(f, name), count=getattr(f, name).shape[0])
+    return g
 

@@ -1,24 +1,35 @@
-"""Background grid: one type for every level.
+"""Background grids: one type for both levels.
 
-A :class:`Grid` owns its spacing, its origin and its node arrays. Level 0 uses
-spacing dx over the whole domain; the subdivided level (dx/b) will use the same
-type with block-sparse storage. Transfer kernels take the :class:`GridSpec`
-struct, so the same kernels serve any spacing.
+A :class:`Grid` owns its spacing, its origin and its node storage. Node data live
+in flat arrays addressed through :func:`node_index`:
+
+* dense (level 0, spacing dx): index = (i ny + j) nz + k over the whole domain;
+* block-sparse (level 1, spacing dx/b): the domain is cut into 4x4x4-node blocks;
+  a small dense table maps a block to a slot in a pool of active blocks, or to -1.
+  Blocks are activated from the refined region and from level-1 particles; memory
+  and time follow them, not the domain volume. Slots are kept once given, so the
+  colour distance field of a block is built once for static colliders.
+
+Transfer kernels take the :class:`GridSpec` struct, so the same code serves any
+spacing and either storage.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from .boundary import BOUNDARY_IDS as WALL_IDS
+
+wp.set_module_options({"enable_backward": False})
+
 # Nodes outside the domain box on each side: a particle on the wall plane still has
 # its 3x3x3 quadratic B-spline stencil inside the grid.
 GRID_PAD = 3
-
-from .boundary import BOUNDARY_IDS as WALL_IDS
+BLOCK = 4  # nodes per block side (sparse grids)
+BLOCK_NODES = BLOCK**3
 
 
 @wp.struct
@@ -27,6 +38,7 @@ class GridSpec:
     dx: float
     inv_dx: float
     dims: wp.vec3i  # node counts per axis
+    level: int  # particles of this level gather from this grid
     domain_lo: wp.vec3  # wall planes
     domain_hi: wp.vec3
     wall_type_lo: wp.vec3i  # per axis: type of the wall at domain_lo / domain_hi
@@ -34,16 +46,47 @@ class GridSpec:
     friction_lo: wp.vec3  # Coulomb friction coefficients, same layout
     friction_hi: wp.vec3
     gravity: wp.vec3
+    sparse: int
+    blocks: wp.array3d(dtype=wp.int32)  # block -> slot, -1 inactive (sparse only)
+    slot_block: wp.array(dtype=wp.vec3i)  # slot -> block coordinates (sparse only)
+
+
+@wp.func
+def node_index(g: GridSpec, i: int, j: int, k: int):
+    """Flat storage index of node (i, j, k); -1 for an inactive node of a sparse grid."""
+    if g.sparse == 0:
+        return (i * g.dims[1] + j) * g.dims[2] + k
+    s = g.blocks[i >> 2, j >> 2, k >> 2]
+    if s < 0:
+        return -1
+    return s * BLOCK_NODES + ((i & 3) * BLOCK + (j & 3)) * BLOCK + (k & 3)
+
+
+@wp.func
+def node_coords(g: GridSpec, n: int):
+    """Inverse of node_index for a storage index n."""
+    if g.sparse == 0:
+        k = n % g.dims[2]
+        j = (n // g.dims[2]) % g.dims[1]
+        return wp.vec3i(n // (g.dims[1] * g.dims[2]), j, k)
+    b = g.slot_block[n >> 6]
+    local = n & 63
+    return wp.vec3i(b[0] * BLOCK + (local >> 4), b[1] * BLOCK + ((local >> 2) & 3), b[2] * BLOCK + (local & 3))
+
+
+@wp.func
+def node_position(g: GridSpec, c: wp.vec3i):
+    return g.origin + wp.vec3(float(c[0]), float(c[1]), float(c[2])) * g.dx
 
 
 @dataclass
 class Grid:
     spec: GridSpec
-    level: int
-    mv: wp.array3d  # momentum during P2G
-    m: wp.array3d  # mass
-    v: wp.array3d  # velocity after the grid update (read by G2P)
+    mv: wp.array  # momentum during P2G (flat)
+    m: wp.array  # mass
+    v: wp.array  # velocity after the grid update (read by G2P)
     colour: object = None  # ColourField of the colliders (CPIC), set by the solver
+    active_slots: int = 0  # sparse: blocks in use
 
     @property
     def dims(self) -> tuple[int, int, int]:
@@ -54,10 +97,28 @@ class Grid:
     def dx(self) -> float:
         return float(self.spec.dx)
 
+    @property
+    def level(self) -> int:
+        return int(self.spec.level)
+
+    @property
+    def sparse(self) -> bool:
+        return bool(self.spec.sparse)
+
+    @property
+    def node_count(self) -> int:
+        """Nodes in storage: all of a dense grid, the active blocks of a sparse one."""
+        return self.active_slots * BLOCK_NODES if self.sparse else int(np.prod(self.dims))
+
+    @property
+    def capacity(self) -> int:
+        return self.m.shape[0]
+
     @staticmethod
-    def dense(domain_lo, domain_hi, dx: float, level: int, gravity, walls: dict, device):
-        """Dense grid over the domain; ``walls`` maps face names ('x_min', ...) to
-        (type, friction)."""
+    def create(domain_lo, domain_hi, dx: float, level: int, gravity, walls: dict, device,
+               sparse: bool = False, capacity_blocks: int = 64):
+        """Grid over the domain plus GRID_PAD cells; ``walls`` maps face names
+        ('x_min', ...) to (type, friction)."""
         lo = np.asarray(domain_lo, dtype=np.float64)
         hi = np.asarray(domain_hi, dtype=np.float64)
         cells = np.ceil((hi - lo) / dx - 1e-9).astype(int)
@@ -67,6 +128,7 @@ class Grid:
         spec.dx = float(dx)
         spec.inv_dx = float(1.0 / dx)
         spec.dims = wp.vec3i(*dims)
+        spec.level = int(level)
         spec.domain_lo = wp.vec3(*lo)
         spec.domain_hi = wp.vec3(*hi)
         spec.wall_type_lo = wp.vec3i(*[WALL_IDS[walls[f"{a}_min"][0]] for a in "xyz"])
@@ -74,20 +136,39 @@ class Grid:
         spec.friction_lo = wp.vec3(*[float(walls[f"{a}_min"][1]) for a in "xyz"])
         spec.friction_hi = wp.vec3(*[float(walls[f"{a}_max"][1]) for a in "xyz"])
         spec.gravity = wp.vec3(*gravity)
+        spec.sparse = int(sparse)
+        if sparse:
+            bdims = tuple(-(-d // BLOCK) for d in dims)
+            spec.blocks = wp.full(bdims, -1, dtype=wp.int32, device=device)
+            spec.slot_block = wp.zeros(int(np.prod(bdims)), dtype=wp.vec3i, device=device)
+            n = capacity_blocks * BLOCK_NODES
+        else:
+            spec.blocks = wp.zeros((1, 1, 1), dtype=wp.int32, device=device)
+            spec.slot_block = wp.zeros(1, dtype=wp.vec3i, device=device)
+            n = int(np.prod(dims))
         return Grid(
             spec=spec,
-            level=level,
-            mv=wp.zeros(dims, dtype=wp.vec3, device=device),
-            m=wp.zeros(dims, dtype=float, device=device),
-            v=wp.zeros(dims, dtype=wp.vec3, device=device),
+            mv=wp.zeros(n, dtype=wp.vec3, device=device),
+            m=wp.zeros(n, dtype=float, device=device),
+            v=wp.zeros(n, dtype=wp.vec3, device=device),
         )
 
     def node_positions(self) -> np.ndarray:
-        """(nx, ny, nz, 3) world positions of the nodes (host, for tests and plots)."""
+        """(nx, ny, nz, 3) world positions of the nodes of a dense grid (host)."""
         o = np.array([self.spec.origin[i] for i in range(3)], dtype=np.float64)
         idx = np.stack(np.meshgrid(*[np.arange(n) for n in self.dims], indexing="ij"), axis=-1)
         return o + idx * self.dx
 
-
-def cells_across(lo, hi, dx) -> int:
-    return int(math.ceil(max(h - l for l, h in zip(lo, hi)) / dx))
+    def grow(self, slots: int) -> bool:
+        """Make room for ``slots`` active blocks (sparse); True if storage moved."""
+        self.active_slots = slots
+        need = slots * BLOCK_NODES
+        if need <= self.capacity:
+            return False
+        cap = max(need, 2 * self.capacity)
+        for name in ("mv", "m", "v"):
+            old = getattr(self, name)
+            new = wp.zeros(cap, dtype=old.dtype, device=old.device)
+            wp.copy(new, old, count=old.shape[0])
+            setattr(self, name, new)
+        return True

@@ -1,11 +1,17 @@
-"""The MLS-MPM step, in one place.
+"""The adaptive-boundary MPM step, in one place (paper Algorithm 1).
 
-``MPMSolver.step(state, dt, time)`` is the whole algorithm of a step:
-move the colliders and rebuild their colour distance field, P2G with MLS forces
-(compatible nodes only), grid update with walls and collider contact, G2P with
-boundary velocities, deformation update and return mapping, advection without
-crossing a collider. Everything else (sampling, output, diagnostics, time
-stepping) lives outside.
+``MPMSolver.step(state, dt, time)`` is the whole step:
+
+1. move the colliders to ``time`` and rebuild their colour distance field;
+2. adaptive mode: split the level-0 particles that entered the refined region
+   (Eq. 15) and give the fine grid the blocks its particles need;
+3. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
+4. grid update: gravity, domain walls, collider contact (Eqs. 3-4, 22);
+5. G2P of each particle from its own level's grid, with boundary velocities at
+   incompatible nodes (Eqs. 11-12, 23-25), deformation update and return mapping
+   (Eqs. 7, 13-14), advection that never crosses a collider.
+
+Everything else (sampling, output, diagnostics, time stepping) lives outside.
 """
 
 from __future__ import annotations
@@ -13,26 +19,32 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
-
-from . import transfer
 from ..scene.model import FACES
-from .colliders import ColliderSet, colour_field, colour_particles, empty_spec
+from . import transfer
+from .colliders import ColliderSet, colour_field, colour_particles, empty_spec, grow_colour_field
 from .grid import Grid
 from .materials import MaterialParams
-from .state import DYNAMIC, STATIC, ParticleState
+from .refine import Refiner
+from .state import FIELDS, ParticleState
+
+wp.set_module_options({"enable_backward": False})
 
 
 @dataclass
 class SolverConfig:
     domain_lo: tuple[float, float, float]
     domain_hi: tuple[float, float, float]
-    dx: float
+    dx: float  # spacing of the coarsest grid
     gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
     # face name ('x_min' ... 'z_max') -> (wall type, friction); missing faces: separate, 0
     walls: dict | None = None
+    # refinement factor b of a block-sparse level-1 grid (adaptive mode), or None
+    refine_factor: int | None = None
+    # level the single dense grid serves (1 in finest mode, where every particle is fine)
+    base_level: int = 0
 
 
 class MPMSolver:
@@ -41,70 +53,126 @@ class MPMSolver:
         self.config = config
         self.device = device
         self.materials = wp.array(materials, dtype=MaterialParams, device=device)
-        self.grid = Grid.dense(
-            config.domain_lo, config.domain_hi, config.dx, 0, config.gravity,
-            {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}, device,
-        )
+        walls = {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}
+        common = (config.domain_lo, config.domain_hi)
+        self.grids = [Grid.create(*common, config.dx, config.base_level, config.gravity, walls, device)]
+        self.refiner = None
+        if config.refine_factor:
+            fine = Grid.create(*common, config.dx / config.refine_factor, 1, config.gravity, walls, device,
+                               sparse=True)
+            self.grids.append(fine)
+            self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device)
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
         self.cpic = colliders is not None and bool(colliders.spec.cpic)
-        if colliders is None:
-            self.collision = empty_spec(device)
-            self.grid.colour = colour_field((1, 1, 1), device)
-        else:
-            self.collision = colliders.spec
-            self.grid.colour = colour_field(self.grid.dims, device)
-            colliders.colour(self.grid, self.grid.colour)
+        self.collision = colliders.spec if colliders is not None else empty_spec(device)
+        for g in self.grids:
+            g.colour = colour_field(g.capacity if colliders is not None else 1, device)
+            if colliders is not None and not g.sparse:
+                colliders.colour(g)
+        self.next_id = 0
 
-    def move_colliders(self, time: float) -> None:
-        """Colliders to time t (Eq. 22 velocities), colour field rebuilt if they moved."""
-        c = self.colliders
-        if c is None or (c.static and c.time is not None):
-            return
-        c.set_time(time)
-        self.collision = c.spec
-        c.colour(self.grid, self.grid.colour)
+    @property
+    def grid(self) -> Grid:
+        """The level-0 (coarsest) grid."""
+        return self.grids[0]
 
-    def colour_particles(self, state: ParticleState) -> None:
-        """Initial CPIC colour of every particle (later steps update it in G2P)."""
-        if self.colliders is None:
-            return
-        g = self.grid
-        wp.launch(colour_particles, dim=state.count, device=self.device,
-                  inputs=[state.x, self.collision, g.spec, g.colour], outputs=[state.cp, state.cn, state.cbody])
+    # ------------------------------------------------------------------ the step
 
     def step(self, state: ParticleState, dt: float, time: float = 0.0) -> None:
         """Advance ``state`` in place from ``time`` by ``dt``. In place is safe: G2P
         reads and writes only its own particle, after P2G has read them all."""
         self.move_colliders(time)
-        g, s = self.grid, state
+        if self.refiner is not None:
+            self.refine(state)
+        for g in self.grids:
+            self._p2g(state, g, dt)
+        for g in self.grids:
+            self._grid_update(g, dt)
+        for g in self.grids:
+            self._g2p(state, g, dt)
+
+    def _p2g(self, s: ParticleState, g: Grid, dt: float) -> None:
         wp.launch(
-            transfer.P2G[self.cpic], dim=s.count, device=self.device,
+            transfer.P2G[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.cp, s.cn, s.cbody,
                     self.materials, g.spec, g.colour, dt, g.mv, g.m],
         )
-        wp.launch(transfer.grid_update, dim=g.dims, device=self.device,
-                  inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v])
+
+    def _grid_update(self, g: Grid, dt: float) -> None:
+        if g.node_count:
+            wp.launch(transfer.grid_update, dim=g.node_count, device=self.device,
+                      inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v])
+
+    def _g2p(self, s: ParticleState, g: Grid, dt: float) -> None:
         wp.launch(
-            transfer.G2P[self.cpic], dim=s.count, device=self.device,
+            transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
-                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.cp, s.cn, s.cbody],
+                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody],
         )
+
+    # ------------------------------------------------------------------ colliders
+
+    def move_colliders(self, time: float) -> None:
+        """Colliders to time t (Eq. 22 velocities), colour fields rebuilt if they moved."""
+        c = self.colliders
+        if c is None or (c.static and c.time is not None):
+            return
+        c.set_time(time)
+        self.collision = c.spec
+        for g in self.grids:
+            c.colour(g)
+
+    def colour_particles(self, state: ParticleState) -> None:
+        """CPIC colour of every particle from its own grid (later steps update it in G2P)."""
+        if self.colliders is None or not self.cpic:
+            return
+        for g in self.grids:
+            wp.launch(colour_particles, dim=state.count, device=self.device,
+                      inputs=[state.x, state.level, self.collision, g.spec, g.colour],
+                      outputs=[state.cp, state.cn, state.cbody])
+
+    # ------------------------------------------------------------------ refinement
+
+    def set_region(self, cells: np.ndarray, state: ParticleState | None = None) -> None:
+        """Refined coarse cells (adaptive mode)."""
+        self.refiner.set_region(cells)
+        self._after_activation(0)
+        if state is not None:
+            self.refine(state)
+
+    def refine(self, state: ParticleState) -> None:
+        """Split particles that entered the region (Eq. 15); activate the fine blocks
+        the level-1 particles reach."""
+        n_split = self.refiner.split(state, self.next_id)
+        if n_split:
+            self.next_id += n_split * self.refiner.b**3
+            self.colour_particles(state)
+        first = self.refiner.activate(state)
+        self._after_activation(first)
+
+    def _after_activation(self, first_slot: int) -> None:
+        fine = self.grids[1]
+        if self.colliders is not None:
+            fine.colour = grow_colour_field(fine.colour, fine.capacity)
+            self.colliders.colour(fine, first_slot)
 
     # ------------------------------------------------------------------ sorting
 
     def sort_by_cell(self, state: ParticleState) -> None:
-        """Reorder particles by grid cell so P2G/G2P touch memory coherently (on the device)."""
+        """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the device)."""
         n = state.count
+        if n == 0:
+            return
         keys = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         perm = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         wp.launch(_cell_keys, dim=n, inputs=[state.x, self.grid.spec], outputs=[keys, perm], device=self.device)
         wp.utils.radix_sort_pairs(keys, perm, n)
-        for name in DYNAMIC + STATIC:
+        for name in FIELDS:
             src = getattr(state, name)
-            tmp = wp.empty_like(src)
+            tmp = wp.empty(n, dtype=src.dtype, device=self.device)
             wp.launch(_gather, dim=n, inputs=[src, perm], outputs=[tmp], device=self.device)
-            wp.copy(src, tmp)
+            wp.copy(src, tmp, count=n)
 
 
 @wp.kernel
@@ -120,3 +188,4 @@ def _cell_keys(x: wp.array(dtype=wp.vec3), g: transfer.GridSpec, keys: wp.array(
 def _gather(src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.array(dtype=Any)):
     p = wp.tid()
     dst[p] = src[perm[p]]
+

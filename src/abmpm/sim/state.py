@@ -7,13 +7,14 @@ state in place (``step(state, dt, time)``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
 DYNAMIC = ("x", "v", "C", "F", "plastic", "cp", "cn", "cbody")
-STATIC = ("mass", "volume", "material", "level", "id")
+STATIC = ("mass", "volume", "material", "level", "id", "family")
+FIELDS = DYNAMIC + STATIC
 DTYPES = {
     "x": wp.vec3,
     "v": wp.vec3,
@@ -28,6 +29,7 @@ DTYPES = {
     "cp": wp.vec3,
     "cn": wp.vec3,
     "cbody": wp.int32,
+    "family": wp.int32,
 }
 
 
@@ -36,21 +38,23 @@ class ParticleState:
     x: wp.array  # position, m
     v: wp.array  # velocity, m/s
     C: wp.array  # APIC affine matrix (~ velocity gradient), 1/s
-    F: wp.array  # elastic deformation gradient
+    F: wp.array  # elastic deformation gradient (identity for fluids)
     plastic: wp.array  # scalar state: fluid volume ratio J; snow J_P; sand volume correction
-    mass: wp.array  # kg
-    volume: wp.array  # initial volume V0, m^3
-    material: wp.array  # index into the scene's materials
-    level: wp.array  # 0 original, 1 subdivided
-    id: wp.array  # stable particle identifier (order changes when particles are sorted)
     # colour w.r.t. the nearest collider (CPIC): closest surface point, unit direction
     # from it to the particle, and the collider index (-1 when far from all)
     cp: wp.array
     cn: wp.array
     cbody: wp.array
+    mass: wp.array  # kg
+    volume: wp.array  # initial volume V0, m^3
+    material: wp.array  # index into the scene's materials
+    level: wp.array  # 0 original, 1 subdivided
+    id: wp.array  # stable particle identifier (order changes when particles are sorted)
+    family: wp.array  # id of the parent a subdivided particle was split from, else -1
+    count: int = 0  # particles in use; the arrays may hold more (capacity)
 
     @property
-    def count(self) -> int:
+    def capacity(self) -> int:
         return self.x.shape[0]
 
     @property
@@ -58,25 +62,39 @@ class ParticleState:
         return self.x.device
 
     @staticmethod
-    def from_numpy(arrays: dict[str, np.ndarray], device) -> "ParticleState":
+    def from_numpy(arrays: dict[str, np.ndarray], device, capacity: int = 0) -> "ParticleState":
         n = len(arrays["x"])
+        cap = max(n, capacity)
         kw = {}
-        for f in fields(ParticleState):
-            a = arrays.get(f.name)
+        for name in FIELDS:
+            a = arrays.get(name)
             if a is None:
-                a = _default(f.name, n)
-            kw[f.name] = wp.array(np.ascontiguousarray(a), dtype=DTYPES[f.name], device=device)
-        return ParticleState(**kw)
+                a = _default(name, n)
+            full = np.zeros((cap,) + a.shape[1:], dtype=a.dtype)
+            full[:n] = a
+            kw[name] = wp.array(full, dtype=DTYPES[name], device=device)
+        return ParticleState(count=n, **kw)
 
     def numpy(self) -> dict[str, np.ndarray]:
-        # On the CPU, wp.array.numpy() is a zero-copy view that the next step overwrites
-        # (double buffering); snapshots must be copies on every device.
+        # wp.array.numpy() on the CPU is a zero-copy view that the next step
+        # overwrites; snapshots must be copies on every device.
         out = {}
-        for f in fields(self):
-            arr = getattr(self, f.name)
-            a = arr.numpy()
-            out[f.name] = a.copy() if arr.device.is_cpu else a
+        for name in FIELDS:
+            arr = getattr(self, name)
+            a = arr.numpy()[: self.count]
+            out[name] = a.copy() if arr.device.is_cpu else a
         return out
+
+    def reserve(self, capacity: int) -> None:
+        """Grow every array to hold ``capacity`` particles, keeping the first ``count``."""
+        if capacity <= self.capacity:
+            return
+        cap = max(capacity, int(1.5 * self.capacity))
+        for name in FIELDS:
+            old = getattr(self, name)
+            new = wp.zeros(cap, dtype=old.dtype, device=old.device)
+            wp.copy(new, old, count=self.count)
+            setattr(self, name, new)
 
 
 def _default(name: str, n: int) -> np.ndarray:
@@ -88,7 +106,7 @@ def _default(name: str, n: int) -> np.ndarray:
         return np.zeros(n, dtype=np.int32)
     if name == "id":
         return np.arange(n, dtype=np.int32)
-    if name == "cbody":
+    if name in ("cbody", "family"):
         return np.full(n, -1, dtype=np.int32)
     if name in ("C",):
         return np.zeros((n, 3, 3), dtype=np.float32)

@@ -2,9 +2,10 @@
 
 Kernels are parameterised by the receiving grid's :class:`GridSpec`, so they serve
 the original grid (dx) and the subdivided grid (dx/b) alike. P2G and G2P come in
-two compile-time variants (``P2G[cpic]``, ``G2P[cpic]``): with colliders they test
-compatibility (CPIC), without they are the plain loops. On Warp's CPU backend the
-collider code costs time even where it is skipped, so plain scenes do not carry it.
+compile-time variants ``P2G[cpic, sparse]``: with colliders they test compatibility
+(CPIC), on a block-sparse grid they skip inactive nodes; otherwise they are the
+plain loops. On Warp's CPU backend such code costs time even where it is skipped,
+so the variants that do not need it do not carry it.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from .colliders import (
     ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
     near_surface, node_bit, node_contact, stop_crossing,
 )
-from .grid import GridSpec
+from .grid import GridSpec, node_coords, node_index, node_position
 from .materials import (
     MODEL_FLUID, MaterialParams, fluid_stress, fluid_volume_update, solid_stress, update_deformation,
 )
@@ -46,7 +47,7 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
     return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
-def _make_p2g(cpic: bool):
+def _make_p2g(cpic: bool, sparse: bool):
     @wp.kernel
     def p2g(
         x: wp.array(dtype=wp.vec3),
@@ -64,12 +65,17 @@ def _make_p2g(cpic: bool):
         g: GridSpec,
         colour: ColourField,
         dt: float,
-        grid_mv: wp.array3d(dtype=wp.vec3),
-        grid_m: wp.array3d(dtype=float),
+        grid_mv: wp.array(dtype=wp.vec3),
+        grid_m: wp.array(dtype=float),
     ):
+        # Eqs. 8-10: every particle scatters to every grid, with that grid's kernel
+        # and spacing; on a sparse grid only to its active nodes.
         p = wp.tid()
         xp = x[p]
         base = stencil_base(g, xp)
+        if wp.static(sparse):
+            if not stencil_touches_active(g, base):
+                return
         fx = stencil_offset(g, xp, base)
         w = bspline_weights(fx)
         m = mass[p]
@@ -92,14 +98,29 @@ def _make_p2g(cpic: bool):
         for i in range(3):
             for j in range(3):
                 for k in range(3):
+                    n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                    if wp.static(sparse):
+                        if n < 0:
+                            continue
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
                     if wp.static(cpic):
                         weight = weight * node_bit(mask, i, j, k)
-                    wp.atomic_add(grid_mv, base[0] + i, base[1] + j, base[2] + k, weight * (mv + affine * dpos))
-                    wp.atomic_add(grid_m, base[0] + i, base[1] + j, base[2] + k, weight * m)
+                    wp.atomic_add(grid_mv, n, weight * (mv + affine * dpos))
+                    wp.atomic_add(grid_m, n, weight * m)
 
     return p2g
+
+
+@wp.func
+def stencil_touches_active(g: GridSpec, base: wp.vec3i):
+    # the 3x3x3 stencil spans at most 2 blocks per axis: test their corners
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                if node_index(g, base[0] + 2 * a, base[1] + 2 * b, base[2] + 2 * c) >= 0:
+                    return True
+    return False
 
 
 @wp.kernel
@@ -108,36 +129,36 @@ def grid_update(
     spec: CollisionSpec,
     colour: ColourField,
     dt: float,
-    grid_mv: wp.array3d(dtype=wp.vec3),
-    grid_m: wp.array3d(dtype=float),
-    grid_v: wp.array3d(dtype=wp.vec3),
+    grid_mv: wp.array(dtype=wp.vec3),
+    grid_m: wp.array(dtype=float),
+    grid_v: wp.array(dtype=wp.vec3),
 ):
     # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
     # clears the P2G accumulators for the next step so the grid is swept once.
-    i, j, k = wp.tid()
-    m = grid_m[i, j, k]
+    n = wp.tid()
+    m = grid_m[n]
     vi = wp.vec3(0.0)
     if m > 0.0:
-        vi = grid_mv[i, j, k] / m + dt * g.gravity
-        xi = g.origin + wp.vec3(float(i), float(j), float(k)) * g.dx
+        vi = grid_mv[n] / m + dt * g.gravity
+        xi = node_position(g, node_coords(g, n))
         tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
         for d in range(3):
             if xi[d] <= g.domain_lo[d] + tol:
-                n = wp.vec3(0.0)
-                n[d] = 1.0
-                vi = boundary_response(vi, wp.vec3(0.0), n, g.wall_type_lo[d], g.friction_lo[d], 0.0)
+                nrm = wp.vec3(0.0)
+                nrm[d] = 1.0
+                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
             if xi[d] >= g.domain_hi[d] - tol:
-                n = wp.vec3(0.0)
-                n[d] = -1.0
-                vi = boundary_response(vi, wp.vec3(0.0), n, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+                nrm = wp.vec3(0.0)
+                nrm[d] = -1.0
+                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
         if spec.enabled != 0:
-            vi = node_contact(spec, colour, g, vi, xi, i, j, k)
-    grid_v[i, j, k] = vi
-    grid_mv[i, j, k] = wp.vec3(0.0)
-    grid_m[i, j, k] = 0.0
+            vi = node_contact(spec, colour, g, vi, xi, n)
+    grid_v[n] = vi
+    grid_mv[n] = wp.vec3(0.0)
+    grid_m[n] = 0.0
 
 
-def _make_g2p(cpic: bool):
+def _make_g2p(cpic: bool, sparse: bool):
     @wp.kernel
     def g2p(
         materials: wp.array(dtype=MaterialParams),
@@ -145,7 +166,7 @@ def _make_g2p(cpic: bool):
         spec: CollisionSpec,
         colour: ColourField,
         dt: float,
-        grid_v: wp.array3d(dtype=wp.vec3),
+        grid_v: wp.array(dtype=wp.vec3),
         # particle state, updated in place (each thread touches only its own particle)
         x: wp.array(dtype=wp.vec3),
         v: wp.array(dtype=wp.vec3),
@@ -153,11 +174,15 @@ def _make_g2p(cpic: bool):
         F: wp.array(dtype=wp.mat33),
         plastic: wp.array(dtype=float),
         material: wp.array(dtype=wp.int32),
+        level: wp.array(dtype=wp.int32),
         cp: wp.array(dtype=wp.vec3),
         cn: wp.array(dtype=wp.vec3),
         cbody: wp.array(dtype=wp.int32),
     ):
+        # Eqs. 11-12: a particle gathers from its own level's grid only
         p = wp.tid()
+        if level[p] != g.level:
+            return
         xp = x[p]
         base = stencil_base(g, xp)
         fx = stencil_offset(g, xp, base)
@@ -169,7 +194,7 @@ def _make_g2p(cpic: bool):
                 for k in range(3):
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
-                    vi = grid_v[base[0] + i, base[1] + j, base[2] + k]
+                    vi = grid_v[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
                     new_v += weight * vi  # Eq. 5 / 11
                     B += weight * wp.outer(vi, dpos)
         if wp.static(cpic):
@@ -185,7 +210,7 @@ def _make_g2p(cpic: bool):
                                 if node_bit(mask, i, j, k) == 0.0:
                                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                                     weight = w[i, 0] * w[j, 1] * w[k, 2]
-                                    dv = v_bar - grid_v[base[0] + i, base[1] + j, base[2] + k]
+                                    dv = v_bar - grid_v[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
                                     new_v += weight * dv
                                     B += weight * wp.outer(dv, dpos)
         # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
@@ -227,5 +252,6 @@ def _make_g2p(cpic: bool):
     return g2p
 
 
-P2G = {False: _make_p2g(False), True: _make_p2g(True)}
-G2P = {False: _make_g2p(False), True: _make_g2p(True)}
+_VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
+P2G = {key: _make_p2g(*key) for key in _VARIANTS}
+G2P = {key: _make_g2p(*key) for key in _VARIANTS}

@@ -1,0 +1,185 @@
+"""Adaptive refinement: particle split (Eq. 15) and activation of fine-grid blocks.
+
+The refined region B_s is a flag per coarse cell. A level-0 particle in a refined
+cell becomes N_s = b^3 level-1 children on a sub-lattice of its own volume,
+deformed by its F (DESIGN.md step 3):
+
+    x_c = x_p + F_p d_k,   m_c = m_p / N_s,   V_c = V_p / N_s,
+    v_c = v_p + C_p (x_c - x_p),   C, F and the plastic state copied.
+
+Since sum_k d_k = 0, mass and linear momentum are conserved exactly (up to float32
+rounding of the products). Children remember their parent's id (``family``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .grid import BLOCK, Grid, GridSpec
+from .state import ParticleState
+from .transfer import stencil_base
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0: GridSpec,
+                region: wp.array3d(dtype=wp.int32), flag: wp.array(dtype=wp.int32)):
+    p = wp.tid()
+    flag[p] = 0
+    if level[p] != 0:
+        return
+    X = (x[p] - g0.origin) * g0.inv_dx
+    i = wp.clamp(int(X[0]), 0, region.shape[0] - 1)
+    j = wp.clamp(int(X[1]), 0, region.shape[1] - 1)
+    k = wp.clamp(int(X[2]), 0, region.shape[2] - 1)
+    flag[p] = region[i, j, k]
+
+
+@wp.kernel
+def split_particles(
+    flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
+    x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+    F: wp.array(dtype=wp.mat33), plastic: wp.array(dtype=float), cp: wp.array(dtype=wp.vec3),
+    cn: wp.array(dtype=wp.vec3), cbody: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
+    volume: wp.array(dtype=float), material: wp.array(dtype=wp.int32), level: wp.array(dtype=wp.int32),
+    pid: wp.array(dtype=wp.int32), family: wp.array(dtype=wp.int32),
+):
+    p = wp.tid()
+    if flag[p] == 0:
+        return
+    # read the parent before child 0 overwrites it
+    xp = x[p]
+    vp = v[p]
+    Cp = C[p]
+    Fp = F[p]
+    ns = b * b * b
+    h = wp.pow(volume[p], 1.0 / 3.0)  # side of the parent's lattice cube
+    mc = mass[p] / float(ns)
+    Vc = volume[p] / float(ns)
+    parent = pid[p]
+    first = n_old + offset[p] * (ns - 1)
+    for c in range(ns):
+        q = p
+        if c > 0:
+            q = first + c - 1
+        d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
+        xc = xp + Fp * (h * d)
+        x[q] = xc
+        v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
+        C[q] = Cp
+        F[q] = Fp
+        plastic[q] = plastic[p]
+        cp[q] = cp[p]
+        cn[q] = cn[p]
+        cbody[q] = cbody[p]
+        mass[q] = mc
+        volume[q] = Vc
+        material[q] = material[p]
+        level[q] = 1
+        pid[q] = next_id + offset[p] * ns + c
+        family[q] = parent
+
+
+@wp.kernel
+def flag_particle_blocks(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
+                         wanted: wp.array3d(dtype=wp.int32)):
+    # a level-1 particle needs the blocks its 3x3x3 stencil touches
+    p = wp.tid()
+    if level[p] != g.level:
+        return
+    base = stencil_base(g, x[p])
+    for a in range(2):
+        for bb in range(2):
+            for c in range(2):
+                i = (base[0] + 2 * a) >> 2
+                j = (base[1] + 2 * bb) >> 2
+                k = (base[2] + 2 * c) >> 2
+                if g.blocks[i, j, k] < 0:
+                    wanted[i, j, k] = 1
+
+
+@wp.kernel
+def allocate_blocks(g: GridSpec, wanted: wp.array3d(dtype=wp.int32), counter: wp.array(dtype=wp.int32)):
+    # one thread per block: no race on the block table, slots from an atomic counter
+    i, j, k = wp.tid()
+    if wanted[i, j, k] != 0 and g.blocks[i, j, k] < 0:
+        s = wp.atomic_add(counter, 0, 1)
+        g.blocks[i, j, k] = s
+        g.slot_block[s] = wp.vec3i(i, j, k)
+    wanted[i, j, k] = 0
+
+
+class Refiner:
+    """Owns the refined region and keeps the particles and the fine grid in step with it."""
+
+    def __init__(self, fine: Grid, coarse: Grid, factor: int, device):
+        self.fine = fine
+        self.coarse = coarse
+        self.b = factor
+        self.device = device
+        cells = tuple(d - 1 for d in coarse.dims)
+        self.region_cells = np.zeros(cells, dtype=bool)
+        self.region = wp.zeros(cells, dtype=wp.int32, device=device)
+        self.wanted = wp.zeros(fine.spec.blocks.shape, dtype=wp.int32, device=device)
+        self.counter = wp.zeros(1, dtype=wp.int32, device=device)
+        self._flag = wp.zeros(1, dtype=wp.int32, device=device)
+        self._offset = wp.zeros(1, dtype=wp.int32, device=device)
+        self.splits = 0
+
+    def set_region(self, cells: np.ndarray) -> None:
+        """Refined coarse cells (bool array over the coarse cells); their fine blocks
+        are activated now, with the stencil reach of particles at the region's edge."""
+        self.region_cells = np.asarray(cells, dtype=bool)
+        self.region.assign(self.region_cells.astype(np.int32))
+        wanted = np.zeros(self.wanted.shape, dtype=np.int32)
+        idx = np.argwhere(self.region_cells)
+        if len(idx):
+            lo = np.maximum(idx * self.b - 2, 0) // BLOCK
+            hi = np.minimum((idx + 1) * self.b + 2, np.array(self.fine.dims) - 1) // BLOCK
+            for a, bb in zip(lo, hi):
+                wanted[a[0]:bb[0] + 1, a[1]:bb[1] + 1, a[2]:bb[2] + 1] = 1
+        self.wanted.assign(wanted)
+        self._allocate()
+
+    def _allocate(self) -> int:
+        g = self.fine
+        wp.launch(allocate_blocks, dim=self.wanted.shape, inputs=[g.spec, self.wanted, self.counter],
+                  device=self.device)
+        old = g.active_slots
+        g.grow(int(self.counter.numpy()[0]))
+        return old
+
+    def split(self, state: ParticleState, next_id: int) -> int:
+        """Split the level-0 particles inside the region; returns how many were split."""
+        n = state.count
+        if n == 0 or not self.region_cells.any():
+            return 0
+        if self._flag.shape[0] < n:
+            self._flag = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
+            self._offset = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
+        wp.launch(flag_splits, dim=n, inputs=[state.x, state.level, self.coarse.spec, self.region],
+                  outputs=[self._flag], device=self.device)
+        wp.utils.array_scan(self._flag, self._offset, inclusive=False)
+        last = self._offset.numpy()[n - 1] + self._flag.numpy()[n - 1]  # host sync: the new count
+        n_split = int(last)
+        if n_split == 0:
+            return 0
+        ns = self.b**3
+        state.reserve(n + n_split * (ns - 1))
+        s = state
+        wp.launch(split_particles, dim=n, device=self.device, inputs=[
+            self._flag, self._offset, n, self.b, next_id,
+            s.x, s.v, s.C, s.F, s.plastic, s.cp, s.cn, s.cbody, s.mass, s.volume, s.material, s.level, s.id,
+            s.family])
+        state.count = n + n_split * (ns - 1)
+        self.splits += n_split
+        return n_split
+
+    def activate(self, state: ParticleState) -> int:
+        """Give fine-grid blocks to level-1 particles that reach beyond the active ones;
+        returns the first new slot."""
+        wp.launch(flag_particle_blocks, dim=state.count, inputs=[state.x, state.level, self.fine.spec],
+                  outputs=[self.wanted], device=self.device)
+        return self._allocate()
