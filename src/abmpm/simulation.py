@@ -132,7 +132,6 @@ class Simulation:
         self.device = choose_device(device if device is not None else st.device)
         self.frame_dt = 1.0 / st.fps
         self.dx = st.dx  # spacing of the coarsest grid
-        self.fine_dx = st.dx / b if self.mode == "adaptive" else st.dx  # the CFL spacing
         colliders = None
         if scene.colliders:
             meshes = [collider_mesh(c, scene.resolve, f"colliders[{i}]") for i, c in enumerate(scene.colliders)]
@@ -154,7 +153,7 @@ class Simulation:
         if self.mode == "finest":
             arrays["level"][:] = 1
         self._load_arrays(arrays)
-        self.solver.next_id = len(arrays["x"])
+        self.solver.next_id = self._initial_count = len(arrays["x"])
         if self.mode == "adaptive":
             self.solver.set_region(self.refinement_cells(), self._state)
         self.frame = 0
@@ -176,9 +175,17 @@ class Simulation:
         """CFL on the grid spacing with the wave speed plus the fastest particle, capped
         by max_dt, then shortened so that a whole number of substeps fills a frame."""
         st = self.scene.simulation
-        dt = min(st.max_dt, st.cfl * self.fine_dx / (self.wave_speed + max_speed))
+        dt = min(st.max_dt, st.cfl * self.finest_active_dx / (self.wave_speed + max_speed))
         self.substeps = max(1, math.ceil(self.frame_dt / dt - 1e-9))
         self.dt = self.frame_dt / self.substeps
+
+    @property
+    def finest_active_dx(self) -> float:
+        """The CFL spacing: dx/b once a fine level is in use, else dx."""
+        r = self.solver.refiner
+        if r is not None and (r.region_cells.any() or self.solver.next_id > self._initial_count):
+            return self.solver.grids[1].dx
+        return self.dx
 
     def refinement_cells(self) -> np.ndarray:
         """Refined coarse cells B_s now: boundary density of the colliders marked for

@@ -63,6 +63,9 @@ __all__ = [
     "RegionParams",
     "catmull_clark",
     "densify",
+    "boundary_edges",
+    "rim_samples",
+    "triangle_samples",
     "surface_samples",
     "kde_density",
     "kde_on_grid",
@@ -77,7 +80,8 @@ CUTOFF = 4.0
 # is (1 - exp(-CUTOFF^2 / 2)) of the whole.
 _NORM = 1.0 / (2.0 * np.pi * (1.0 - np.exp(-0.5 * CUTOFF**2)))
 # Guard against refining a mesh into more triangles than memory allows.
-_MAX_TRIANGLES = 20_000_000
+_MAX_SAMPLES = 20_000_000
+_KEY = np.int64(1) << 31  # edge key = min * _KEY + max
 
 
 @dataclass
@@ -98,7 +102,7 @@ class RegionParams:
     halo: int = 1
     boxes: Sequence = ()
     subdivisions: int = 1
-    max_edge: float = 0.5
+    max_edge: float = 1.0
     crease_angle_deg: float = 30.0
 
     def __post_init__(self):
@@ -213,14 +217,16 @@ def _catmull_clark_pass(v: np.ndarray, f: np.ndarray, cos_crease: float):
     return new_v, quads
 
 
-def catmull_clark(mesh, passes: int = 1, crease_angle_deg: float = 30.0):
+def catmull_clark(mesh, passes: int = 1, crease_angle_deg: float = 30.0, return_parent: bool = False):
     """Catmull-Clark subdivision of a triangle (or uniform quad) mesh, ``passes`` times.
 
     ``mesh`` is a :class:`trimesh.Trimesh` or a ``(vertices, faces)`` pair. Returns
     ``(vertices, quads)``: each input k-gon becomes k quads per pass. Smooth vertices
     follow Eq. 26; boundary, non-manifold and sharp edges (dihedral angle above
     ``crease_angle_deg``) are creases (see the module docstring). Unreferenced
-    vertices are carried along unchanged. The input is not modified.
+    vertices are carried along unchanged. The input is not modified. With
+    ``return_parent`` also returns, per output quad, the index of the input face it
+    lies in.
     """
     if isinstance(mesh, trimesh.Trimesh):
         v, f = mesh.vertices, mesh.faces
@@ -231,11 +237,14 @@ def catmull_clark(mesh, passes: int = 1, crease_angle_deg: float = 30.0):
     if f.ndim != 2 or f.shape[1] not in (3, 4):
         raise ValueError("faces must be an (M, 3) or (M, 4) array")
     cos_crease = float(np.cos(np.radians(crease_angle_deg)))
+    parent = np.arange(len(f))
     for _ in range(int(passes)):
         if len(f) == 0:
             break
+        k = f.shape[1]
         v, f = _catmull_clark_pass(v, f, cos_crease)
-    return v, f
+        parent = parent[np.arange(len(f)) // k]  # face j of input face i is row i k + j
+    return (v, f, parent) if return_parent else (v, f)
 
 
 def _triangulate(faces: np.ndarray) -> np.ndarray:
@@ -244,52 +253,117 @@ def _triangulate(faces: np.ndarray) -> np.ndarray:
     return np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
 
 
-def densify(vertices: np.ndarray, faces: np.ndarray, max_edge: float):
-    """Split triangles (quads are cut into two first) at their edge midpoints until no
-    edge is longer than ``max_edge``. The surface does not move and its area is kept
-    exactly; the result may have T-junctions (irrelevant for sampling).
-    Returns ``(vertices, triangles)``."""
+def _edge_lengths(v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Lengths of edges (t0, t1), (t1, t2), (t2, t0) of each triangle, ``(M, 3)``."""
+    return np.linalg.norm(v[np.roll(t, -1, axis=1)] - v[t], axis=2)
+
+
+def densify(vertices, faces, max_edge: float, face_data=None):
+    """Split triangles (quads are cut in two first) until no edge is longer than
+    ``max_edge``, by bisecting the longest edge of each long triangle at its midpoint.
+
+    The surface does not move and its area is kept exactly. Longest-edge bisection
+    follows the shape of each triangle, so thin (anisotropic) triangles are cut only
+    across their long side and the vertex count stays close to area / max_edge^2.
+    Midpoints of an edge are shared by the triangles that split it; a neighbour that
+    does not split it is left with a T-junction, harmless for sampling.
+    Returns ``(vertices, triangles)``, and with ``face_data`` (one row per input face)
+    also that data for each output triangle.
+    """
     v = np.asarray(vertices, dtype=np.float64)
-    t = _triangulate(np.asarray(faces, dtype=np.int64))
+    faces = np.asarray(faces, dtype=np.int64)
+    t = _triangulate(faces)
+    data = None if face_data is None else np.asarray(face_data)
+    if data is not None:
+        if len(data) != len(faces):
+            raise ValueError("face_data needs one row per face")
+        data = data if faces.shape[1] == 3 else np.concatenate([data, data])
     if len(t) == 0:
-        return v, t
+        return (v, t) if data is None else (v, t, data)
     if not max_edge > 0:
         raise ValueError("max_edge must be positive")
-    longest = np.linalg.norm(v[t] - v[np.roll(t, -1, axis=1)], axis=2).max(axis=1)
-    levels = np.ceil(np.log2(np.maximum(longest / max_edge, 1.0)))
-    if np.sum(4.0**levels) > _MAX_TRIANGLES:
+    lengths = _edge_lengths(v, t)
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+    estimate = len(v) + np.sum(np.where(lengths.max(axis=1) > max_edge, 2.0 * area / max_edge**2, 0.0))
+    if estimate > _MAX_SAMPLES:
         raise ValueError(
-            f"detection mesh would need about {np.sum(4.0 ** levels):.3g} triangles at max_edge "
-            f"{max_edge:g}; raise the bandwidth or max_edge"
+            f"detection mesh would need about {estimate:.3g} vertices at edge length {max_edge:g}; "
+            "raise the bandwidth or max_edge"
         )
     verts = [v]
     nv = len(v)
-    done = []
+    known_keys = np.zeros(0, dtype=np.int64)  # sorted edge keys already split
+    known_mid = np.zeros(0, dtype=np.int64)  # their midpoint vertex ids
+    done, done_data = [], []
     while len(t):
-        vv = np.concatenate(verts) if len(verts) > 1 else verts[0]
-        verts = [vv]
-        lengths = np.linalg.norm(vv[t] - vv[np.roll(t, -1, axis=1)], axis=2)
-        split = lengths.max(axis=1) > max_edge
+        longest = lengths.argmax(axis=1)
+        split = lengths[np.arange(len(t)), longest] > max_edge
         done.append(t[~split])
-        t = t[split]
+        t, longest = t[split], longest[split]
+        if data is not None:
+            done_data.append(data[~split])
+            data = data[split]
         if len(t) == 0:
             break
-        e = np.stack([t, np.roll(t, -1, axis=1)], axis=2).reshape(-1, 2)
-        e.sort(axis=1)
-        keys, inv = np.unique(e[:, 0] * np.int64(nv + 3 * len(t)) + e[:, 1], return_inverse=True)
-        inv = inv.reshape(-1)
-        first = np.zeros(len(keys), dtype=np.int64)
-        first[inv] = np.arange(len(inv))
-        ue = e[first]
-        verts.append(0.5 * (vv[ue[:, 0]] + vv[ue[:, 1]]))
-        mids = (nv + inv).reshape(-1, 3)  # midpoint of edge (j, j+1) of each triangle
-        nv += len(keys)
+        # rotate each triangle so that its longest edge is (a, b)
+        rows = np.arange(len(t))[:, None]
+        t = t[rows, (longest[:, None] + np.arange(3)[None, :]) % 3]
         a, b, c = t[:, 0], t[:, 1], t[:, 2]
-        mab, mbc, mca = mids[:, 0], mids[:, 1], mids[:, 2]
-        t = np.concatenate(
-            [np.stack(x, 1) for x in ((a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca))]
-        )
-    return np.concatenate(verts), np.concatenate(done)
+        key = np.minimum(a, b) * _KEY + np.maximum(a, b)
+        uniq, inv = np.unique(key, return_inverse=True)
+        inv = inv.reshape(-1)
+        pos = np.searchsorted(known_keys, uniq)
+        pos_c = np.minimum(pos, max(len(known_keys) - 1, 0))
+        found = (pos < len(known_keys)) & (known_keys[pos_c] == uniq) if len(known_keys) else np.zeros(len(uniq), bool)
+        mid_id = np.empty(len(uniq), dtype=np.int64)
+        mid_id[found] = known_mid[pos_c[found]]
+        new = np.flatnonzero(~found)
+        mid_id[new] = nv + np.arange(len(new))
+        ends = np.stack([uniq[new] // _KEY, uniq[new] % _KEY], 1)
+        vv = np.concatenate(verts) if len(verts) > 1 else verts[0]
+        mids = 0.5 * (vv[ends[:, 0]] + vv[ends[:, 1]])
+        verts = [vv, mids]
+        nv += len(new)
+        order = np.argsort(np.concatenate([known_keys, uniq[new]]), kind="stable")
+        known_keys = np.concatenate([known_keys, uniq[new]])[order]
+        known_mid = np.concatenate([known_mid, mid_id[new]])[order]
+        m = mid_id[inv]
+        t = np.concatenate([np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
+        if data is not None:
+            data = np.concatenate([data, data])
+        vv = np.concatenate(verts)
+        verts = [vv]
+        lengths = _edge_lengths(vv, t)
+    v, t = np.concatenate(verts), np.concatenate(done)
+    return (v, t) if data is None else (v, t, np.concatenate(done_data))
+
+
+def triangle_samples(vertices, faces, max_edge: float, reference_normals=None):
+    """Area-weighted sample points of a triangle (or quad) mesh: the vertices of
+    :func:`densify` ``(vertices, faces, max_edge)``, each weighted by a third of the
+    area of the triangles it is a corner of. Returns ``(points (N, 3), weights (N,))``;
+    the weights sum to the area exactly.
+
+    With ``reference_normals`` (one per face) a triangle facing against the normal of
+    its face counts negatively: where smoothing has folded a surface over itself the
+    fold then cancels instead of counting twice (see :func:`surface_samples`).
+    """
+    if reference_normals is None:
+        v, t = densify(vertices, faces, max_edge)
+    else:
+        v, t, ref = densify(vertices, faces, max_edge, face_data=np.asarray(reference_normals, dtype=np.float64))
+    cross = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    if reference_normals is not None:
+        area = np.where(np.einsum("ij,ij->i", cross, ref) < 0.0, -area, area)
+    w = np.bincount(t.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
+    return v, w
+
+
+def _median_edge(v: np.ndarray, f: np.ndarray) -> float:
+    if len(f) == 0:
+        return 0.0
+    return float(np.median(np.linalg.norm(v[f] - v[np.roll(f, -1, axis=1)], axis=2)))
 
 
 def _mesh_is_open(mesh: trimesh.Trimesh) -> bool:
@@ -303,15 +377,21 @@ def surface_samples(
     h: float,
     open: bool | None = None,
     subdivisions: int = 1,
-    max_edge: float = 0.5,
+    max_edge: float = 1.0,
     crease_angle_deg: float = 30.0,
 ):
     """Area-weighted detection samples of one collider for kernel bandwidth ``h``
     (world units): ``(points (N, 3), weights (N,))``.
 
-    Catmull-Clark ``subdivisions`` times, then midpoint splitting to edges of at most
-    ``max_edge * h``; each vertex carries a third of the area of its triangles. Open
-    meshes (``open=None``: detected from boundary edges) weigh twice their area.
+    Up to ``subdivisions`` Catmull-Clark passes, each only while the median edge is
+    longer than ``max_edge * h`` (a mesh already fine compared with the kernel gains
+    nothing from more points), then longest-edge bisection to edges of at most
+    ``max_edge * h`` (:func:`densify`); each vertex carries a third of the area of its
+    triangles. Smoothing a badly shaped triangulation (long slivers from a polygon
+    triangulation, say) can fold a few subdivided faces over their neighbours; a
+    triangle facing against the input face it comes from therefore counts its area
+    negatively, so the fold cancels. Open meshes (``open=None``: detected from
+    boundary edges) weigh twice their area.
     """
     if not h > 0:
         raise ValueError(f"h must be positive, got {h}")
@@ -319,14 +399,62 @@ def surface_samples(
         return np.zeros((0, 3)), np.zeros(0)
     if open is None:
         open = _mesh_is_open(mesh)
-    v, q = catmull_clark(mesh, passes=subdivisions, crease_angle_deg=crease_angle_deg)
-    v, t = densify(v, q, max_edge * h)
-    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
-    w = np.bincount(t.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
-    if open:
-        w *= 2.0
-    keep = w > 0
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    q = np.asarray(mesh.faces, dtype=np.int64)
+    normals = _face_normals(v, q)
+    parent = np.arange(len(q))
+    for _ in range(int(subdivisions)):
+        if _median_edge(v, q) <= max_edge * h:
+            break  # already fine compared with the kernel: a pass would only add points
+        v, q, sub_parent = catmull_clark((v, q), passes=1, crease_angle_deg=crease_angle_deg, return_parent=True)
+        parent = parent[sub_parent]
+    rim_p, rim_w = rim_samples(v, q, h, max_edge * h)
+    v, w = triangle_samples(v, q, max_edge * h, reference_normals=normals[parent])
+    sides = 2.0 if open else 1.0
+    v = np.concatenate([v, rim_p])
+    w = sides * np.concatenate([w, rim_w])
+    keep = w != 0
     return v[keep], w[keep]
+
+
+def boundary_edges(faces) -> np.ndarray:
+    """Edges used by exactly one face of a triangle or uniform quad mesh, ``(K, 2)``
+    vertex indices in the direction of their face."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    a, b = f.ravel(), np.roll(f, -1, axis=1).ravel()
+    key = np.minimum(a, b) * _KEY + np.maximum(a, b)
+    _, inv, count = np.unique(key, return_inverse=True, return_counts=True)
+    once = count[inv.reshape(-1)] == 1
+    return np.stack([a[once], b[once]], 1)
+
+
+def rim_samples(vertices, faces, h: float, spacing: float):
+    """Samples of the free edges (boundary edges) of a surface, per unit of surface
+    weight: ``(points, weights)``.
+
+    Near a free edge the area term sees only half a plane, so a rim would read half
+    the value of its surface. A Gaussian line of weight ``c`` per unit length reads
+    ``c / (sqrt(2 pi) h)`` on itself, so a line weight of ``sqrt(2 pi) h / 2`` per unit
+    length restores the full value on the rim: a straight edge of a sheet reads 2.0,
+    like the sheet (the value falls to ~0.9 one h beyond the edge, and reaches ~2.3 one
+    h inside it). Each edge is cut into pieces no longer than ``spacing``, sampled at
+    their midpoints.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    e = boundary_edges(faces)
+    if len(e) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    a, b = v[e[:, 0]], v[e[:, 1]]
+    length = np.linalg.norm(b - a, axis=1)
+    n = np.maximum(np.ceil(length / spacing - 1e-9), 1).astype(np.int64)
+    edge = np.repeat(np.arange(len(e)), n)
+    start = np.concatenate([[0], np.cumsum(n)[:-1]])
+    frac = (np.arange(len(edge)) - start[edge] + 0.5) / n[edge]
+    pts = a[edge] + frac[:, None] * (b - a)[edge]
+    w = (0.5 * np.sqrt(2.0 * np.pi) * h) * (length / n)[edge]
+    return pts, w
 
 
 # ----------------------------------------------------------------------------- density
@@ -343,13 +471,14 @@ def kde_density(points, weights, nodes_xyz, h: float) -> np.ndarray:
         return lam
     r = CUTOFF * h
     pairs = cKDTree(p).sparse_distance_matrix(cKDTree(x), r, output_type="ndarray")
+    pairs = pairs[pairs["v"] < r]
     if len(pairs):
         k = w[pairs["i"]] * np.exp(-0.5 * (pairs["v"] / h) ** 2)
         lam = np.bincount(pairs["j"], weights=k, minlength=len(x))
     return lam * (_NORM / (h * h))
 
 
-def kde_on_grid(points, weights, origin, dx: float, node_dims, h: float, chunk: int = 4096) -> np.ndarray:
+def kde_on_grid(points, weights, origin, dx: float, node_dims, h: float, chunk: int = 1024) -> np.ndarray:
     """The same density as :func:`kde_density` on all nodes of a regular grid
     (node ``(i, j, k)`` at ``origin + dx (i, j, k)``), shape ``node_dims``.
 
@@ -369,24 +498,27 @@ def kde_on_grid(points, weights, origin, dx: float, node_dims, h: float, chunk: 
         p, w = p[inside], w[inside]
     if len(p) == 0 or np.any(dims <= 0):
         return lam.reshape(dims)
-    kr = int(np.ceil(r / dx))
-    off = np.arange(-kr, kr + 2)  # floor(u) + off covers every node within r
+    kr = int(np.ceil(r / dx - 1e-12))
+    off = np.arange(1 - kr, kr + 1)  # floor(u) + off covers every node closer than r
     strides = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
     inv2h2 = 0.5 / (h * h)
     r2 = r * r
     for s in range(0, len(p), chunk):
         u = (p[s : s + chunk] - origin) / dx
         base = np.floor(u).astype(np.int64)
-        idx_axis, d2_axis = [], []
+        idx_axis, d2_axis, g_axis = [], [], []
         for a in range(3):
             ia = base[:, a : a + 1] + off[None, :]
             da = ((ia - u[:, a : a + 1]) * dx) ** 2
-            da = np.where((ia >= 0) & (ia < dims[a]), da, np.inf)  # off-grid nodes
+            da[(ia < 0) | (ia >= dims[a])] = np.inf  # nodes off the grid
             idx_axis.append(np.clip(ia, 0, dims[a] - 1) * strides[a])
             d2_axis.append(da)
-        d2 = d2_axis[0][:, :, None, None] + d2_axis[1][:, None, :, None] + d2_axis[2][:, None, None, :]
-        k = np.where(d2 <= r2, np.exp(-inv2h2 * np.minimum(d2, 1e300)), 0.0) * w[s : s + chunk, None, None, None]
-        idx = idx_axis[0][:, :, None, None] + idx_axis[1][:, None, :, None] + idx_axis[2][:, None, None, :]
+            g_axis.append(np.exp(-inv2h2 * da))
+        # separable Gaussian, cut at distance r
+        k = (g_axis[0] * w[s : s + chunk, None])[:, :, None, None] * (g_axis[1][:, :, None] * g_axis[2][:, None, :])[:, None]
+        d2 = d2_axis[0][:, :, None, None] + (d2_axis[1][:, :, None] + d2_axis[2][:, None, :])[:, None]
+        k[d2 >= r2] = 0.0
+        idx = idx_axis[0][:, :, None, None] + (idx_axis[1][:, :, None] + idx_axis[2][:, None, :])[:, None]
         idx, k = idx.ravel(), k.ravel()
         lo_i = int(idx.min())
         lam[lo_i : int(idx.max()) + 1] += np.bincount(idx - lo_i, weights=k)

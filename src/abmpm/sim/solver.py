@@ -71,6 +71,7 @@ class MPMSolver:
             if colliders is not None and not g.sparse:
                 colliders.colour(g)
         self.next_id = 0
+        self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
 
     @property
     def grid(self) -> Grid:
@@ -93,10 +94,14 @@ class MPMSolver:
             self._g2p(state, g, dt)
 
     def _p2g(self, s: ParticleState, g: Grid, dt: float) -> None:
+        # with a second grid, the first P2G keeps each particle's stress for it
+        store = len(self.grids) > 1
+        if store and self._tau.shape[0] < s.count:
+            self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         wp.launch(
             transfer.P2G[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.cp, s.cn, s.cbody,
-                    self.materials, g.spec, g.colour, dt, g.mv, g.m],
+                    self.materials, g.spec, g.colour, dt, self._tau, int(store), g.mv, g.m],
         )
 
     def _grid_update(self, g: Grid, dt: float) -> None:

@@ -65,11 +65,15 @@ def _make_p2g(cpic: bool, sparse: bool):
         g: GridSpec,
         colour: ColourField,
         dt: float,
+        tau_store: wp.array(dtype=wp.mat33),
+        store: int,
         grid_mv: wp.array(dtype=wp.vec3),
         grid_m: wp.array(dtype=float),
     ):
         # Eqs. 8-10: every particle scatters to every grid, with that grid's kernel
-        # and spacing; on a sparse grid only to its active nodes.
+        # and spacing; on a sparse grid only to its active nodes. The stress is
+        # evaluated once per step: the dense (first) P2G stores it when ``store`` is
+        # set, the sparse (second) P2G reads it back.
         p = wp.tid()
         xp = x[p]
         base = stencil_base(g, xp)
@@ -80,12 +84,17 @@ def _make_p2g(cpic: bool, sparse: bool):
         w = bspline_weights(fx)
         m = mass[p]
         Cp = C[p]
-        mat = materials[material[p]]
         tau = wp.mat33()
-        if mat.model == MODEL_FLUID:
-            tau = fluid_stress(mat, plastic[p], Cp)  # no F traffic for fluids
+        if wp.static(sparse):
+            tau = tau_store[p]
         else:
-            tau = solid_stress(mat, F[p], Cp, plastic[p])
+            mat = materials[material[p]]
+            if mat.model == MODEL_FLUID:
+                tau = fluid_stress(mat, plastic[p], Cp)  # no F traffic for fluids
+            else:
+                tau = solid_stress(mat, F[p], Cp, plastic[p])
+            if store != 0:
+                tau_store[p] = tau
         # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
         # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
         affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp

@@ -1,0 +1,184 @@
+"""Adaptive boundary MPM: split, two-grid transfers, modes (paper Sections 3.2,
+4.2, 5.2). Tolerances are stated inline."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+import abmpm
+from abmpm.scene import model as sm
+from abmpm.sim.materials import material_params
+from abmpm.sim.solver import MPMSolver, SolverConfig
+from abmpm.sim.state import ParticleState
+from abmpm.simulation import init_warp
+
+
+# --------------------------------------------------------------------------- split
+
+
+def split_everything(x, v, C, F, mass, b):
+    """Run the split kernel on particles that all lie in a refined region."""
+    init_warp()
+    solver = MPMSolver(SolverConfig((0, 0, 0), (1, 1, 1), 0.1, refine_factor=b),
+                       [material_params(sm.Elastic(name="e"))], "cpu")
+    n = len(x)
+    state = ParticleState.from_numpy(
+        {"x": x, "v": v, "C": C, "F": F, "mass": mass, "volume": mass / 1000.0}, "cpu")
+    solver.next_id = n
+    solver.set_region(np.ones(tuple(d - 1 for d in solver.grid.dims), dtype=bool), state)
+    return state.numpy()
+
+
+@settings(max_examples=15, deadline=None)
+@given(n=st.integers(1, 40), b=st.sampled_from([2, 3]), seed=st.integers(0, 2**31 - 1))
+def test_split_conserves_mass_and_momentum(n, b, seed):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0.2, 0.8, (n, 3)).astype(np.float32)
+    v = rng.normal(0, 2.0, (n, 3)).astype(np.float32)
+    C = rng.normal(0, 5.0, (n, 3, 3)).astype(np.float32)
+    F = (np.eye(3) + rng.normal(0, 0.1, (n, 3, 3))).astype(np.float32)
+    mass = rng.uniform(1e-4, 1e-2, n).astype(np.float32)
+    out = split_everything(x, v, C, F, mass, b)
+    ns = b**3
+    assert len(out["x"]) == n * ns and np.all(out["level"] == 1)
+    M0, M = mass.astype(np.float64).sum(), out["mass"].astype(np.float64).sum()
+    if b == 2:
+        assert M == M0  # m/8 is exact in binary floating point: the sum is bit-exact
+    else:
+        assert abs(M - M0) <= 4 * np.finfo(np.float32).eps * M0  # m/27 rounds once per child
+    P0 = (mass[:, None].astype(np.float64) * v).sum(axis=0)
+    P = (out["mass"][:, None].astype(np.float64) * out["v"]).sum(axis=0)
+    scale = (mass.astype(np.float64) * np.linalg.norm(v, axis=1)).sum()
+    # sum_k d_k = 0 makes the affine terms cancel; float32 products leave ~1e-7 x
+    # (|C| |F d| / |v| ~ 5 x 0.05 / 2) relative round-off per child
+    assert np.abs(P - P0).max() <= 1e-5 * scale
+    # every parent's children sit around it, with the family link back to it
+    fam = out["family"]
+    assert len(np.unique(fam)) == n and np.all(np.bincount(fam) [np.unique(fam)] == ns)
+
+
+# --------------------------------------------------------------------------- modes
+
+
+def jelly_scene(mode, boxes=()):
+    return abmpm.Scene(
+        simulation=abmpm.SimulationSettings(dx=0.05, fps=20, refinement={"mode": mode, "boxes": list(boxes)}),
+        materials=[abmpm.Elastic(name="jelly", youngs_modulus=3e4)],
+        bodies=[abmpm.SphereBody(material="jelly", center=(0.5, 0.45, 0.5), radius=0.15)],
+    )
+
+
+def kinetic_energy_curve(scene, frames=10):
+    sim = abmpm.Simulation(scene, device="cpu")
+    sim.advance(frames=frames)
+    return np.array([h["kinetic_energy"] for h in sim.history]), sim
+
+
+def test_adaptive_with_empty_region_is_the_original_run():
+    ke_o, o = kinetic_energy_curve(jelly_scene("original"), frames=6)
+    ke_a, a = kinetic_energy_curve(jelly_scene("adaptive"), frames=6)
+    assert a.particles().level.max() == 0
+    # nothing refined: the same kernels on the same grid, bit for bit
+    assert np.array_equal(o.particles().by_id().x, a.particles().by_id().x)
+    assert np.array_equal(ke_o, ke_a)
+
+
+def test_adaptive_covering_the_domain_behaves_like_finest():
+    whole = [((0, 0, 0), (1, 1, 1))]
+    ke_a, a = kinetic_energy_curve(jelly_scene("adaptive", whole))
+    ke_f, _ = kinetic_energy_curve(jelly_scene("finest"))
+    ke_o, _ = kinetic_energy_curve(jelly_scene("original"))
+    assert np.all(a.particles().level == 1)
+    # Same fine grid, same particle spacing; differences come from the samples
+    # (children of jittered coarse particles vs a fresh fine lattice: ~1% of mass)
+    # and from the coarse grid that also receives the mass. 5% of the peak kinetic
+    # energy, while the coarse run differs from finest by more than that at impact.
+    peak = ke_f.max()
+    assert np.abs(ke_a - ke_f).max() < 0.05 * peak, np.round((ke_a - ke_f) / peak, 3)
+    assert np.abs(ke_o - ke_f).max() > np.abs(ke_a - ke_f).max()
+
+
+def test_elastic_block_slides_into_refined_region_as_one_body():
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            dx=0.05, fps=20, gravity=(0, 0, 0),
+            refinement={"mode": "adaptive", "boxes": [((0.45, 0.0, 0.0), (1.0, 1.0, 1.0))]}),
+        materials=[abmpm.Elastic(name="jelly", youngs_modulus=2e4)],
+        bodies=[abmpm.BoxBody(material="jelly", min=(0.1, 0.4, 0.4), max=(0.3, 0.6, 0.6), velocity=(1.0, 0, 0))],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    x0 = sim.particles().x
+    nn, _ = cKDTree(x0).query(x0, k=2)
+    radius = 1.05 * nn[:, 1].max()  # the block is one piece at this radius
+    sim.advance(seconds=0.25)  # the front half has crossed into the refined region
+    p = sim.particles()
+    assert 0 < (p.level == 1).sum() < len(p.x)  # both levels present
+    pairs = cKDTree(p.x).query_pairs(radius, output_type="ndarray")
+    n, _ = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                           shape=(len(p.x), len(p.x))), directed=False)
+    assert n == 1  # no gap opens at the level interface
+    # nothing sticks at the interface: every particle still moves with the block
+    # (1 m/s; 20%: the elastic block rings after the levels start to interact)
+    assert np.all(np.abs(p.v[:, 0] - 1.0) < 0.2), np.abs(p.v[:, 0] - 1.0).max()
+
+
+def test_fluid_through_refined_band_keeps_momentum():
+    def run(mode):
+        scene = abmpm.Scene(
+            simulation=abmpm.SimulationSettings(
+                dx=0.05, fps=20, refinement={"mode": mode, "boxes": [((0.0, 0.35, 0.0), (1.0, 0.55, 1.0))]}),
+            materials=[abmpm.Fluid(name="water", bulk_modulus=5e4)],
+            bodies=[abmpm.BoxBody(material="water", min=(0.35, 0.65, 0.35), max=(0.65, 0.85, 0.65))],
+        )
+        sim = abmpm.Simulation(scene, device="cpu")
+        P = []
+        # 0.3 s: the water's bottom has fallen through the band, it has not reached the floor
+        sim.advance(seconds=0.3, callback=lambda s: P.append(s.diagnostics()["momentum"][1]))
+        return np.array(P), sim
+    P_o, _ = run("original")
+    P_a, a = run("adaptive")
+    assert a.particles().level.max() == 1  # it did pass through the band
+    # before the water reaches the floor it falls freely through the band: the
+    # two-grid transfer (Eqs. 8-12) must not add or remove momentum; 1% of |P|
+    assert np.abs(P_a - P_o).max() < 0.01 * np.abs(P_o).max(), (P_a, P_o)
+
+
+# --------------------------------------------------------------------------- narrow passage
+
+
+def slit_scene(mode):
+    """Water drains through a slit 1.25 coarse cells (3.75 fine cells at b = 3) wide."""
+    dx, W, Z, yp = 0.04, 0.4, 0.16, 0.2
+    slit = 1.25 * dx
+    half = (W - slit) / 2
+    plates = [sm.ThinBoxCollider(size=(half, 0.004, Z + 0.1), center=(half / 2, yp, Z / 2)),
+              sm.ThinBoxCollider(size=(half, 0.004, Z + 0.1), center=(W - half / 2, yp, Z / 2))]
+    return abmpm.Scene(
+        simulation=abmpm.SimulationSettings(domain_max=(W, 0.5, Z), dx=dx, fps=10, max_dt=2e-3,
+                                            walls={"type": "slip"}, refinement={"mode": mode, "factor": 3}),
+        materials=[abmpm.Fluid(name="water", bulk_modulus=2e4)],
+        bodies=[abmpm.BoxBody(material="water", min=(0, 0.24, 0), max=(W, 0.44, Z))],
+        colliders=plates,
+    ), yp
+
+
+@pytest.mark.slow
+def test_narrow_slit_adaptive_drains_like_finest_and_original_clogs():
+    passed = {}
+    for mode in ("original", "adaptive", "finest"):
+        scene, yp = slit_scene(mode)
+        sim = abmpm.Simulation(scene, device="cpu")
+        M = sim.particles().mass.astype(np.float64).sum()
+        series = []
+        sim.advance(frames=8, callback=lambda s: series.append(
+            s.particles().mass[s.particles().x[:, 1] < yp].astype(np.float64).sum() / M))
+        passed[mode] = np.array(series)
+    o, a, f = passed["original"][-1], passed["adaptive"][-1], passed["finest"][-1]
+    # ordering: the coarse grid clogs the slit (or is much slower)
+    assert o < 0.3 * f, passed
+    # the issue's bound: adaptive within 15% of finest at the end
+    assert abs(a - f) < 0.15 * f, passed
