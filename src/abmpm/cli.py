@@ -240,9 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_render)
 
-    b = sub.add_parser("bench", help="performance benchmark")
-    b.add_argument("bench_args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
-    b.set_defaults(func=_cmd_bench)
+    b = sub.add_parser("bench", help="performance benchmark (options: abmpm bench --help-bench)",
+                       add_help=False)
+    b.set_defaults(func=_cmd_bench, bench_args=[])
     return p
 
 
@@ -250,7 +250,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``abmpm``; returns the exit status (0 ok, 2 error, 130 interrupted)."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra and getattr(args, "func", None) is _cmd_bench:
+            args.bench_args = ["--help" if a == "--help-bench" else a for a in extra]  # the benchmark's own options
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
     _quiet_warp()

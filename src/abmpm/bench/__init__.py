@@ -47,6 +47,64 @@ def fluid_block_scene(n: int, grid: int):
     )
 
 
+def slit_scene(dx: float = 0.03, factor: int = 3):
+    """Water drains through a slit 1.25 coarse cells wide in a floor of two thin plates."""
+    from ..scene.model import BoxBody, Fluid, Scene, SimulationSettings, ThinBoxCollider
+
+    W, Z, yp = 0.6, 0.24, 0.25
+    half = (W - 1.25 * dx) / 2
+    plates = [ThinBoxCollider(size=(half, 0.1 * dx, Z + 0.1), center=(half / 2, yp, Z / 2)),
+              ThinBoxCollider(size=(half, 0.1 * dx, Z + 0.1), center=(W - half / 2, yp, Z / 2))]
+    return Scene(
+        name="bench_slit",
+        simulation=SimulationSettings(domain_max=(W, 0.7, Z), dx=dx, fps=20, max_dt=2e-3, walls={"type": "slip"},
+                                      refinement={"mode": "adaptive", "factor": factor}),
+        materials=[Fluid(name="water", bulk_modulus=2e4)],
+        bodies=[BoxBody(material="water", min=(0, 0.3, 0), max=(W, 0.6, Z))],
+        colliders=plates,
+    )
+
+
+def jelly_scene(dx: float = 1 / 30, factor: int = 3):
+    """A jelly ball dropped onto crossed thin blades (after the paper's jelly / bunny-split)."""
+    from ..scene.model import CrossedPlatesCollider, Elastic, Scene, SimulationSettings, SphereBody
+
+    return Scene(
+        name="bench_jelly",
+        simulation=SimulationSettings(domain_max=(1.0, 1.0, 1.0), dx=dx, fps=20,
+                                      refinement={"mode": "adaptive", "factor": factor}),
+        materials=[Elastic(name="jelly", density=1000.0, youngs_modulus=5e4, poisson_ratio=0.3)],
+        bodies=[SphereBody(material="jelly", center=(0.5, 0.55, 0.5), radius=0.15, velocity=(0, -2.0, 0))],
+        colliders=[CrossedPlatesCollider(size=(0.5, 0.2), center=(0.5, 0.15, 0.5))],
+    )
+
+
+ADAPTIVE_CASES = {"narrow slit": slit_scene, "jelly on crossed blades": jelly_scene}
+
+
+def time_modes(scene, frames: int, device: str) -> dict:
+    """Wall-clock steps/s and mean particle count of the same scene in each mode."""
+    from ..simulation import Simulation
+
+    out = {}
+    for mode in ("original", "adaptive", "finest"):
+        sim = Simulation(scene, device=device, mode=mode)
+        sim.step()  # compile and warm up outside the timing
+        counts = []
+        t0 = time.perf_counter()
+        steps0 = sim.steps
+        sim.advance(frames=frames, callback=lambda s: counts.append(s.particle_count))
+        wall = time.perf_counter() - t0
+        out[mode] = {"steps_per_s": round((sim.steps - steps0) / wall, 2), "mean_particles": int(np.mean(counts)),
+                     "steps": sim.steps - steps0, "wall_s": round(wall, 2)}
+    a, f = out["adaptive"], out["finest"]
+    out["speedup_adaptive_over_finest"] = round(a["steps_per_s"] / f["steps_per_s"], 3)
+    out["particle_ratio_finest_over_adaptive"] = round(f["mean_particles"] / a["mean_particles"], 3)
+    out["speedup_per_particle_ratio"] = round(out["speedup_adaptive_over_finest"]
+                                              / out["particle_ratio_finest_over_adaptive"], 3)
+    return out
+
+
 def time_simulation(sim, seconds: float = 4.0, warmup_steps: int = 3) -> tuple[float, int]:
     """steps/s of ``sim.step()`` (frame bookkeeping, diagnostics and sorting included)."""
     import warp as wp
@@ -64,6 +122,31 @@ def time_simulation(sim, seconds: float = 4.0, warmup_steps: int = 3) -> tuple[f
         sim.step()
     wp.synchronize()
     return n / (time.perf_counter() - t0), n
+
+
+def time_collider_overhead(device: str, seconds: float) -> dict:
+    """100k-particle fluid resting on a 20k-triangle static sheet, against the same
+    fluid on the domain floor without the collider (steps/s ratio)."""
+    from ..scene.model import BoxBody, Fluid, Scene, SheetCollider, SimulationSettings
+    from ..simulation import Simulation
+
+    dx = 1.0 / 64
+    block = dict(material="fluid", min=(0.2, 0.3, 0.2), max=(0.2 + 46 * dx, 0.3 + 6 * dx, 0.2 + 46 * dx))
+    base = dict(materials=[Fluid(name="fluid", density=1000.0, bulk_modulus=2e5)],
+                simulation=SimulationSettings(dx=dx, fps=30))
+    without = Scene(bodies=[BoxBody(**{**block, "min": (0.2, 0.0, 0.2), "max": (0.2 + 46 * dx, 6 * dx, 0.2 + 46 * dx)})],
+                    **base)
+    # sheet(resolution=100): 2 x 100 x 100 = 20k triangles, just under the block
+    sheet = SheetCollider(size=(1.2, 1.2), center=(0.5, 0.3 - 0.25 * dx, 0.5), resolution=100)
+    with_c = Scene(bodies=[BoxBody(**block)], colliders=[sheet], **base)
+    res = {}
+    for name, scene in (("without", without), ("with", with_c)):
+        sim = Simulation(scene, device=device)
+        sps, _ = time_simulation(sim, seconds)
+        res[name] = {"steps_per_s": round(sps, 2), "particles": sim.particle_count,
+                     "triangles": sim.solver.colliders.triangle_count if sim.solver.colliders else 0}
+    res["ratio"] = round(res["with"]["steps_per_s"] / res["without"]["steps_per_s"], 3)
+    return res
 
 
 def default_reference() -> Path | None:
@@ -90,6 +173,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--reference", type=Path, default=None, help="path to mls_mpm_minimal_warp.py")
     ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
+    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "all"], default="all")
+    ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = ap.parse_args(argv or [])
 
@@ -99,6 +184,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
     cases = FLUID_CASES[kind][:1] if args.small else FLUID_CASES[kind]
+    if args.suite not in ("fluid", "all"):
+        cases = []
     rows = []
     for n, grid in cases:
         sim = Simulation(fluid_block_scene(n, grid), device=device)
@@ -117,9 +204,22 @@ def run_bench(argv: list[str] | None = None) -> dict:
             flush=True,
         )
         del sim
+    adaptive = {}
+    if args.suite in ("adaptive", "all"):
+        for name, make in ADAPTIVE_CASES.items():
+            adaptive[name] = r = time_modes(make(), args.frames, device)
+            print(f"{name}: " + "  ".join(f"{m} {r[m]['steps_per_s']} steps/s ({r[m]['mean_particles']} particles)"
+                                          for m in ("original", "adaptive", "finest"))
+                  + f"  speedup {r['speedup_adaptive_over_finest']} vs particle ratio "
+                  f"{r['particle_ratio_finest_over_adaptive']} -> {r['speedup_per_particle_ratio']}", flush=True)
+    colliders = {}
+    if args.suite in ("colliders", "all"):
+        colliders = time_collider_overhead(device, args.seconds)
+        print(f"collider overhead: {colliders}", flush=True)
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
+        "adaptive": adaptive, "colliders": colliders,
     }
     if args.json:
         from ..io.summary import write_json

@@ -12,7 +12,7 @@ from .transforms import euler_matrix
 
 # scene shape name -> (generator, the scene fields passed to it)
 _PROCEDURAL = {
-    "sheet": (procedural.sheet, ("size",)),
+    "sheet": (procedural.sheet, ("size", "resolution")),
     "thin_box": (procedural.thin_box, ("size",)),
     "blade": (procedural.blade, ("length", "height", "thickness")),
     "crossed_plates": (procedural.crossed_plates, ("size", "thickness")),

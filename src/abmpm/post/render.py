@@ -3,7 +3,8 @@
 Conventions: world y is up; images are ``uint8 (H, W, 3)`` with row 0 at the top.
 Particles are drawn as shaded sphere impostors (Lambert + ambient) with a z-buffer,
 the domain box as thin dark depth-tested edges, and optional collider triangles as
-flat-shaded semi-transparent grey surfaces under the depth test.
+flat-shaded semi-transparent grey surfaces under the depth test, outlined by their
+feature edges (rims, holes, creases: see :func:`feature_edges`).
 """
 
 from __future__ import annotations
@@ -301,41 +302,43 @@ def _draw_triangles(
         tri_rgb[pix[win]] = color[None, :] * shade[t[win], None]
 
 
-def _draw_box(
-    camera: Camera, lo: np.ndarray, hi: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
-    color=(0.18, 0.19, 0.21),
+def _clip_to_front(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clip camera-space segments (K,3) a -> b to the front of the near plane;
+    returns the clipped ends and a mask of the segments that survive."""
+    za, zb = a[:, 2], b[:, 2]
+    keep = (za > _NEAR) | (zb > _NEAR)
+    a, b, za, zb = a[keep].copy(), b[keep].copy(), za[keep], zb[keep]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (_NEAR - za) / (zb - za)
+    ca = za <= _NEAR
+    a[ca] = a[ca] + s[ca, None] * (b[ca] - a[ca])
+    cb = zb <= _NEAR
+    b[cb] = a[cb] + s[cb, None] * (b[cb] - a[cb])
+    return a, b, keep
+
+
+def _draw_lines(
+    camera: Camera, segments: np.ndarray, rgb: np.ndarray, depth: np.ndarray, color,
+    bias: float, alpha: float = 1.0, write_depth: bool = True,
 ) -> None:
-    """Twelve thin box edges, depth-tested against (and written into) ``depth``."""
+    """One-pixel lines along world-space segments (K,2,3), depth-tested against
+    ``depth`` (``bias`` in world units lets a line win over the surface it lies on)."""
     h, w = camera.height, camera.width
-    corners = np.array(
-        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
-        dtype=np.float64,
-    )
-    edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
-    cc = camera.to_camera(corners)
-    f = camera.focal_px
-    extent = float(np.linalg.norm(hi - lo))
-    pts = []
-    for i, j in edges:
-        a, b = cc[i].copy(), cc[j].copy()
-        # clip the segment to the front of the near plane
-        if a[2] <= _NEAR and b[2] <= _NEAR:
-            continue
-        if a[2] <= _NEAR or b[2] <= _NEAR:
-            s = (_NEAR - a[2]) / (b[2] - a[2])
-            p = a + s * (b - a)
-            if a[2] <= _NEAR:
-                a = p
-            else:
-                b = p
-        pa = np.array([a[0] * f / a[2], a[1] * f / a[2]])
-        pb = np.array([b[0] * f / b[2], b[1] * f / b[2]])
-        nseg = int(min(np.ceil(np.linalg.norm(pb - pa) * 2.0), 20 * (w + h))) + 2
-        s = np.linspace(0.0, 1.0, nseg)[:, None]
-        pts.append(a[None, :] * (1 - s) + b[None, :] * s)
-    if not pts:
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 3)
+    if seg.shape[0] == 0:
         return
-    p = np.concatenate(pts)
+    cam = camera.to_camera(seg)
+    a, b, _ = _clip_to_front(cam[:, 0], cam[:, 1])
+    if a.shape[0] == 0:
+        return
+    f = camera.focal_px
+    pa = a[:, :2] * f / a[:, 2:3]
+    pb = b[:, :2] * f / b[:, 2:3]
+    # samples every half pixel along each segment (capped for segments far off-screen)
+    n = (np.minimum(np.ceil(np.linalg.norm(pb - pa, axis=1) * 2.0), 4 * (w + h)) + 2).astype(np.int64)
+    owner = np.repeat(np.arange(len(n)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n - 1, n)
+    p = a[owner] * (1.0 - t[:, None]) + b[owner] * t[:, None]
     px = 0.5 * w + p[:, 0] * f / p[:, 2]
     py = 0.5 * h - p[:, 1] * f / p[:, 2]
     ix = np.floor(px).astype(np.int64)
@@ -343,11 +346,58 @@ def _draw_box(
     ok = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
     pix = iy[ok] * w + ix[ok]
     pz = p[ok, 2]
-    bias = 1e-3 * extent
     vis = pz <= depth[pix] + bias
     pix, pz = pix[vis], pz[vis]
-    rgb[pix] = np.asarray(color, dtype=np.float32)
-    np.minimum.at(depth, pix, pz)
+    pix, first = np.unique(pix, return_index=True)  # blend each pixel once
+    c = np.asarray(color, dtype=np.float32)
+    rgb[pix] = c if alpha >= 1.0 else alpha * c + (1.0 - alpha) * rgb[pix]
+    if write_depth:
+        np.minimum.at(depth, pix, pz[first])
+
+
+def _draw_box(
+    camera: Camera, lo: np.ndarray, hi: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+    color=(0.18, 0.19, 0.21),
+) -> None:
+    """Twelve thin box edges, depth-tested against (and written into) ``depth``."""
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
+        dtype=np.float64,
+    )
+    edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+    segments = np.stack([corners[[i for i, _ in edges]], corners[[j for _, j in edges]]], axis=1)
+    extent = float(np.linalg.norm(hi - lo))
+    _draw_lines(camera, segments, rgb, depth, color, bias=1e-3 * extent)
+
+
+def feature_edges(vertices: np.ndarray, faces: np.ndarray, angle_deg: float = 35.0) -> np.ndarray:
+    """Edges worth outlining on a collider mesh, as (K, 2) vertex index pairs: boundary
+    edges (rims of sheets, hole outlines: used by one face) and creases (two faces
+    whose normals differ by more than ``angle_deg``; the corners of a thin box).
+
+    Rigid motion keeps the angles, so the pairs of one pose serve every frame.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    face_of = np.tile(np.arange(len(f)), 3)
+    order = np.lexsort((e[:, 1], e[:, 0]))
+    e, face_of = e[order], face_of[order]
+    new = np.ones(len(e), dtype=bool)
+    new[1:] = np.any(e[1:] != e[:-1], axis=1)
+    start = np.nonzero(new)[0]
+    count = np.diff(np.append(start, len(e)))
+    keep = count == 1  # boundary
+    pair = count == 2
+    fa, fb = face_of[start[pair]], face_of[start[pair] + 1]
+    # unsigned angle: open sheets and revolved surfaces may be wound either way
+    crease = np.abs(np.einsum("ij,ij->i", n[fa], n[fb])) < math.cos(math.radians(angle_deg))
+    keep[np.nonzero(pair)[0][crease]] = True
+    return e[start[keep]]
 
 
 def render(
@@ -358,8 +408,11 @@ def render(
     box: tuple[Sequence[float], Sequence[float]] | None = None,
     triangles: np.ndarray | None = None,
     *,
-    triangle_color=(0.62, 0.63, 0.66),
+    edges: np.ndarray | None = None,
+    triangle_color=(0.55, 0.58, 0.64),
     triangle_alpha: float = 0.5,
+    edge_color=(0.22, 0.24, 0.28),
+    edge_alpha: float = 0.85,
 ) -> np.ndarray:
     """Render particles to an ``uint8 (H, W, 3)`` image.
 
@@ -371,6 +424,9 @@ def render(
         box: ``(lo, hi)`` of the domain, drawn as thin dark edges; None for no box.
         triangles: optional (M,3,3) collider triangles, drawn flat-shaded
             semi-transparent grey under the depth test.
+        edges: optional (K,2,3) world-space segments drawn as dark lines over the
+            collider (its outline: ``vertices[feature_edges(vertices, faces)]``);
+            particles in front of them hide them.
     """
     x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
     n = x.shape[0]
@@ -400,6 +456,10 @@ def render(
         front = tri_depth < depth
         a = float(triangle_alpha)
         rgb[front] = a * tri_rgb[front] + (1.0 - a) * rgb[front]
+    if edges is not None and len(edges):
+        lo, hi = (np.asarray(box[0], float), np.asarray(box[1], float)) if box is not None else (x.min(0), x.max(0)) if n else (np.zeros(3), np.ones(3))
+        bias = 2e-3 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(hi - lo)) else 0.0
+        _draw_lines(camera, edges, rgb, depth, edge_color, bias=bias, alpha=edge_alpha, write_depth=False)
     img = np.clip(rgb.reshape(h, w, 3) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return img
 

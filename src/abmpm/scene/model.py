@@ -287,6 +287,7 @@ class SheetCollider(_ColliderBase):
 
     shape: Literal["sheet"] = "sheet"
     size: tuple[PositiveFloat, PositiveFloat] = (1.0, 1.0)
+    resolution: int | None = Field(None, ge=1, le=2000, description="quads per side (2 triangles each)")
 
 
 class ThinBoxCollider(_ColliderBase):

@@ -72,6 +72,8 @@ class MPMSolver:
                 colliders.colour(g)
         self.next_id = 0
         self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
+        self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
+        self._occ = self._no_occ
 
     @property
     def grid(self) -> Grid:
@@ -86,28 +88,43 @@ class MPMSolver:
         self.move_colliders(time)
         if self.refiner is not None:
             self.refine(state)
-        for g in self.grids:
-            self._p2g(state, g, dt)
+        if self.refiner is None:
+            self._p2g(state, self.grid, dt)
+        else:
+            coarse, fine = self.grids
+            self._p2g(state, coarse, dt, only_level=0, overlap=1)
+            self._p2g(state, coarse, dt, only_level=1, overlap=2)
+            self._p2g(state, fine, dt)
         for g in self.grids:
             self._grid_update(g, dt)
         for g in self.grids:
             self._g2p(state, g, dt)
 
-    def _p2g(self, s: ParticleState, g: Grid, dt: float) -> None:
-        # with a second grid, the first P2G keeps each particle's stress for it
-        store = len(self.grids) > 1
+    def _p2g(self, s: ParticleState, g: Grid, dt: float, only_level: int = -1, overlap: int = 0) -> None:
+        # with a second grid, the coarse P2G keeps each particle's stress for it
+        store = len(self.grids) > 1 and not g.sparse
         if store and self._tau.shape[0] < s.count:
             self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         wp.launch(
             transfer.P2G[self.cpic, g.sparse], dim=s.count, device=self.device,
-            inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.cp, s.cn, s.cbody,
-                    self.materials, g.spec, g.colour, dt, self._tau, int(store), g.mv, g.m],
+            inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.level, s.cp, s.cn, s.cbody,
+                    self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
+                    self._occupied(g), g.mv, g.m],
         )
+
+    def _occupied(self, g: Grid):
+        # coarse nodes reached by level-0 particles (adaptive mode only)
+        if self.refiner is not None and not g.sparse:
+            if self._occ.shape[0] != g.capacity:
+                self._occ = wp.zeros(g.capacity, dtype=wp.int32, device=self.device)
+            return self._occ
+        return self._no_occ
 
     def _grid_update(self, g: Grid, dt: float) -> None:
         if g.node_count:
             wp.launch(transfer.grid_update, dim=g.node_count, device=self.device,
-                      inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v])
+                      inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v, self._occupied(g),
+                              int(self.refiner is not None and not g.sparse)])
 
     def _g2p(self, s: ParticleState, g: Grid, dt: float) -> None:
         wp.launch(

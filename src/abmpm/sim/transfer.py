@@ -58,6 +58,7 @@ def _make_p2g(cpic: bool, sparse: bool):
         mass: wp.array(dtype=float),
         volume: wp.array(dtype=float),
         material: wp.array(dtype=wp.int32),
+        level: wp.array(dtype=wp.int32),
         cp: wp.array(dtype=wp.vec3),
         cn: wp.array(dtype=wp.vec3),
         cbody: wp.array(dtype=wp.int32),
@@ -67,6 +68,9 @@ def _make_p2g(cpic: bool, sparse: bool):
         dt: float,
         tau_store: wp.array(dtype=wp.mat33),
         store: int,
+        only_level: int,
+        overlap: int,
+        grid_occupied: wp.array(dtype=wp.int32),
         grid_mv: wp.array(dtype=wp.vec3),
         grid_m: wp.array(dtype=float),
     ):
@@ -74,7 +78,15 @@ def _make_p2g(cpic: bool, sparse: bool):
         # and spacing; on a sparse grid only to its active nodes. The stress is
         # evaluated once per step: the dense (first) P2G stores it when ``store`` is
         # set, the sparse (second) P2G reads it back.
+        #
+        # Adaptive mode splits the coarse P2G in two passes: level-0 particles
+        # (``only_level`` 0) mark the nodes they reach (``overlap`` 1); level-1
+        # particles (``only_level`` 1, ``overlap`` 2) then add to those nodes only:
+        # the overlap where the coarse particles can feel them (Eq. 8). Elsewhere
+        # nobody gathers from the coarse grid.
         p = wp.tid()
+        if only_level >= 0 and level[p] != only_level:
+            return
         xp = x[p]
         base = stencil_base(g, xp)
         if wp.static(sparse):
@@ -95,6 +107,9 @@ def _make_p2g(cpic: bool, sparse: bool):
                 tau = solid_stress(mat, F[p], Cp, plastic[p])
             if store != 0:
                 tau_store[p] = tau
+        if overlap == 2:
+            if not stencil_occupied(g, grid_occupied, base):
+                return
         # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
         # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
         affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp
@@ -110,6 +125,11 @@ def _make_p2g(cpic: bool, sparse: bool):
                     n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
                     if wp.static(sparse):
                         if n < 0:
+                            continue
+                    if overlap == 1:
+                        grid_occupied[n] = 1
+                    elif overlap == 2:
+                        if grid_occupied[n] == 0:
                             continue
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
@@ -132,6 +152,16 @@ def stencil_touches_active(g: GridSpec, base: wp.vec3i):
     return False
 
 
+@wp.func
+def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.vec3i):
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                if occupied[node_index(g, base[0] + i, base[1] + j, base[2] + k)] != 0:
+                    return True
+    return False
+
+
 @wp.kernel
 def grid_update(
     g: GridSpec,
@@ -141,6 +171,8 @@ def grid_update(
     grid_mv: wp.array(dtype=wp.vec3),
     grid_m: wp.array(dtype=float),
     grid_v: wp.array(dtype=wp.vec3),
+    grid_occupied: wp.array(dtype=wp.int32),
+    clear_occupied: int,
 ):
     # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
     # clears the P2G accumulators for the next step so the grid is swept once.
@@ -165,6 +197,8 @@ def grid_update(
     grid_v[n] = vi
     grid_mv[n] = wp.vec3(0.0)
     grid_m[n] = 0.0
+    if clear_occupied != 0:
+        grid_occupied[n] = 0
 
 
 def _make_g2p(cpic: bool, sparse: bool):

@@ -1,0 +1,301 @@
+"""Refined region B_s (abmpm.sim.region): subdivision, kernel density, cells.
+
+Reference readings of the density (module docstring of abmpm.sim.region): one flat
+wall 1.0, a sheet or a closed plate much thinner than h 2.0, the rim of a sheet 2.0.
+Tolerances below state where they come from; "sampling" means the quadrature error
+of area-weighted vertex samples with spacing <= h (measured <= ~1.5% on the
+irregular quads that Catmull-Clark makes of a coarse mesh, ~0.01% on regular ones).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import ndimage
+
+from abmpm.geometry import colliders as C
+from abmpm.sim.region import (
+    RegionParams,
+    catmull_clark,
+    cells_from_lambda,
+    densify,
+    kde_density,
+    kde_on_grid,
+    refinement_region,
+    surface_samples,
+    triangle_samples,
+)
+
+DX = 1.0 / 32.0
+DIMS = (33, 33, 33)  # nodes; the grid spans [0, 1]^3
+
+
+def node(i, j, k, dx=DX):
+    return np.array([[i * dx, j * dx, k * dx]], dtype=np.float64)
+
+
+# ----------------------------------------------------------------------------- Catmull-Clark
+
+
+def _reference_cc(v, f):
+    """Textbook Catmull-Clark of a closed manifold mesh, with loops (no creases)."""
+    v = np.asarray(v, float)
+    face_pt = np.array([v[list(face)].mean(0) for face in f])
+    edge_faces = {}
+    for fi, face in enumerate(f):
+        for j in range(len(face)):
+            a, b = sorted((face[j], face[(j + 1) % len(face)]))
+            edge_faces.setdefault((a, b), []).append(fi)
+    edge_pt = {e: (v[e[0]] + v[e[1]] + face_pt[fs[0]] + face_pt[fs[1]]) / 4 for e, fs in edge_faces.items()}
+    vert_pt = np.empty_like(v)
+    for i in range(len(v)):
+        faces = [fi for fi, face in enumerate(f) if i in face]
+        edges = [e for e in edge_faces if i in e]
+        n = len(edges)
+        F = face_pt[faces].mean(0)
+        E = np.mean([(v[a] + v[b]) / 2 for a, b in edges], axis=0)
+        vert_pt[i] = (F + 2 * E + (n - 3) * v[i]) / n  # Eq. 26
+    return vert_pt, edge_pt, face_pt
+
+
+def test_catmull_clark_cube_known_values():
+    # quad cube [-1, 1]^3 without creases: corners go to +-5/9, edge points to 3/4
+    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+    nv, fq = catmull_clark((v, quads), passes=1, crease_angle_deg=180.0)
+    assert fq.shape == (24, 4)
+    np.testing.assert_allclose(np.abs(nv[:8]), 5.0 / 9.0, atol=1e-12)
+    edge_pts = nv[8:20]
+    np.testing.assert_allclose(np.sort(np.abs(edge_pts), axis=1), np.tile([0.0, 0.75, 0.75], (12, 1)), atol=1e-12)
+    np.testing.assert_allclose(np.sort(np.abs(nv[20:]), axis=1), np.tile([0.0, 0.0, 1.0], (6, 1)), atol=1e-12)
+
+
+def test_catmull_clark_triangles_match_reference():
+    mesh = trimesh.creation.icosphere(subdivisions=1)  # closed, valence 5 and 6
+    nv, quads = catmull_clark(mesh, passes=1, crease_angle_deg=180.0)
+    assert quads.shape == (3 * len(mesh.faces), 4)  # every triangle becomes 3 quads
+    vert_pt, edge_pt, face_pt = _reference_cc(mesh.vertices, mesh.faces)
+    n = len(mesh.vertices)
+    np.testing.assert_allclose(nv[:n], vert_pt, atol=1e-12)
+    np.testing.assert_allclose(nv[-len(face_pt):], face_pt, atol=1e-12)
+    got = {tuple(np.round(p, 9)) for p in nv[n : len(nv) - len(face_pt)]}
+    assert got == {tuple(np.round(p, 9)) for p in edge_pt.values()}
+    assert mesh.vertices.shape == (42, 3)  # input untouched
+
+
+def test_catmull_clark_keeps_boxes_and_sheet_corners():
+    box = C.thin_box(size=(0.4, 0.05, 0.3))
+    v, q = catmull_clark(box, passes=2)
+    half = np.array([0.2, 0.025, 0.15])
+    assert np.all(np.abs(v) <= half + 1e-12)
+    # every vertex stays on the surface: some coordinate sits on a face plane
+    assert np.all(np.any(np.isclose(np.abs(v), half, atol=1e-12), axis=1))
+    np.testing.assert_allclose(v.min(0), -half, atol=1e-12)
+    sheet = C.sheet(size=(1.0, 1.0))
+    v, q = catmull_clark(sheet, passes=1)
+    np.testing.assert_allclose(v[:, 1], 0.0, atol=1e-12)  # stays flat
+    for corner in sheet.vertices:  # the four corners are kept
+        assert np.min(np.linalg.norm(v - corner, axis=1)) < 1e-12
+
+
+def test_catmull_clark_open_boundary_uses_curve_rule():
+    # open disc (fan of a regular 24-gon): the rim vertices follow (a + 6 P + b) / 8
+    m = 24
+    t = 2 * np.pi * np.arange(m) / m
+    v = np.concatenate([[[0.0, 0.0, 0.0]], np.stack([np.cos(t), np.zeros(m), np.sin(t)], 1)])
+    f = np.stack([np.zeros(m, int), 1 + (np.arange(m) + 1) % m, 1 + np.arange(m)], 1)
+    nv, _ = catmull_clark((v, f), passes=1)
+    r = np.linalg.norm(nv[1 : m + 1], axis=1)
+    np.testing.assert_allclose(r, (6 + 2 * np.cos(2 * np.pi / m)) / 8, atol=1e-12)
+
+
+def test_densify_keeps_area_and_bounds_edges():
+    mesh = C.letter_panel("AB", size=(0.6, 0.3))
+    v, t = densify(mesh.vertices, mesh.faces, 0.01)
+    lengths = np.linalg.norm(v[t] - v[np.roll(t, -1, axis=1)], axis=2)
+    assert lengths.max() <= 0.01 + 1e-12
+    area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum()
+    assert area == pytest.approx(mesh.area, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- density
+
+
+def test_grid_density_matches_kdtree():
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.2, 1.2, size=(3000, 3))  # some far outside the grid
+    w = rng.uniform(-0.5, 1.0, size=3000)
+    h = 1.3 * DX
+    dims = (17, 14, 19)
+    origin = np.array([0.1, 0.2, 0.05])
+    lam = kde_on_grid(p, w, origin, DX, dims, h)
+    nodes = origin + DX * np.stack(np.meshgrid(*[np.arange(d) for d in dims], indexing="ij"), -1).reshape(-1, 3)
+    ref = kde_density(p, w, nodes, h).reshape(dims)
+    np.testing.assert_allclose(lam, ref, rtol=1e-10, atol=1e-12)
+
+
+def test_thick_floor_reads_one_and_is_not_refined():
+    floor = C.thin_box(size=(0.75, 0.25, 0.75), center=(0.5, 0.25, 0.5))  # top at node layer 12
+    h = DX
+    p, w = surface_samples(floor, h)
+    centre = kde_density(p, w, node(16, 12, 16), h)[0]
+    # 1.0 exactly for an infinite wall; 5% covers sampling (measured ~1%)
+    assert centre == pytest.approx(1.0, rel=0.05)
+    cells, lam = refinement_region([floor], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
+    assert not cells.any()
+    # edges and corners read higher than the face (measured ~1.27 just inside them),
+    # but stay under the default threshold
+    assert lam.max() > centre + 0.15
+    assert lam.max() < 1.5
+
+
+def test_zero_thickness_sheet_reads_two_and_is_refined():
+    sheet = C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5))
+    h = DX
+    p, w = surface_samples(sheet, h)
+    assert w.sum() > 2 * sheet.area  # counted twice, plus the rim line
+    # 2.0 for an infinite sheet; 3% covers sampling
+    assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(2.0, rel=0.03)
+    # the rim reads the sheet's value too (line term); 5% for sampling and the corner
+    # quarter 4 h away
+    assert kde_density(p, w, [[0.75, 0.5, 0.5]], h)[0] == pytest.approx(2.0, rel=0.05)
+    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
+    assert cells[8:24, 15:17, 8:24].all()  # every cell the sheet touches
+    assert not cells[:, :13, :].any() and not cells[:, 19:, :].any()
+
+
+def test_thin_closed_plate_reads_two_and_is_refined():
+    h = DX
+    plate = C.thin_box(size=(0.5, 0.1 * h, 0.5), center=(0.5, 0.5, 0.5))
+    assert not C.is_open(plate)
+    p, w = surface_samples(plate, h)
+    # two faces 0.05 h from the node: 2 exp(-0.05^2 / 2) = 1.9975; 3% for sampling
+    assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(2.0, rel=0.03)
+    cells, _ = refinement_region([plate], [True], (0, 0, 0), DX, DIMS)
+    assert cells[9:23, 15:17, 9:23].all()
+
+
+def test_open_flag_and_refine_flag():
+    sheet = C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5))
+    h = DX
+    p, w = surface_samples(sheet, h, open_surface=False)  # one-sided: reads like a wall
+    assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(1.0, rel=0.03)
+    cells, lam = refinement_region([sheet], [False], (0, 0, 0), DX, DIMS)
+    assert not cells.any() and not lam.any()
+    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, open_flags=[False])
+    assert not cells.any()  # a one-sided surface is a wall, rims included
+
+
+def test_tessellation_independence():
+    h = DX
+    coarse = C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5))
+    fine = C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5), resolution=(37, 23))
+    assert len(coarse.faces) == 2 and len(fine.faces) > 1000
+    rng = np.random.default_rng(0)
+    probes = np.column_stack([rng.uniform(0.35, 0.65, 20), 0.5 + rng.uniform(0, 1.5 * h, 20), rng.uniform(0.35, 0.65, 20)])
+    probes[0] = (0.5, 0.5 + 0.5 * h, 0.5)  # above the middle
+    a = kde_density(*surface_samples(coarse, h), probes, h)
+    b = kde_density(*surface_samples(fine, h), probes, h)
+    # 5%: sampling of either tessellation (measured < 1.5%)
+    np.testing.assert_allclose(a, b, rtol=0.05)
+    assert a[0] == pytest.approx(2.0 * np.exp(-0.125), rel=0.05)
+
+
+def test_letter_panel_refined_around_every_hole_rim():
+    dx = 1.0 / 64.0
+    for shift in (0.0, 0.5 * dx):  # panel on a node layer, and halfway between two
+        panel = C.letter_panel("ABC", size=(0.8, 0.4), center=(0.5, 0.5, 0.5 + shift))
+        loops = C.boundary_loops(panel)
+        assert len(loops) >= 6  # outline, 3 letters, inner islands
+        cells, _ = refinement_region([panel], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0))
+        for loop in loops:
+            ijk = np.floor(panel.vertices[loop] / dx).astype(int)
+            assert cells[ijk[:, 0], ijk[:, 1], ijk[:, 2]].all()
+        k = int(np.floor((0.5 + shift) / dx))
+        assert not cells[:, :, : k - 3].any() and not cells[:, :, k + 4 :].any()
+
+
+def test_hourglass_neck_refined_bulbs_not():
+    dx = 1.0 / 64.0
+    # a neck of radius r reads about sqrt(2 pi) (r/h) exp(-r^2/2h^2) on its axis, at
+    # most 1.52 (r = h); 0.9 dx gives a margin of ~5% over the default threshold
+    glass = C.hourglass(height=0.9, radius=0.3, neck_radius=0.9 * dx, wall_thickness=2.2 * dx, center=(0.5, 0.5, 0.5))
+    p, w = surface_samples(glass, dx)
+    assert kde_density(p, w, node(32, 32, 32, dx), dx)[0] > 1.5
+    cells, _ = refinement_region([glass], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0))
+    assert cells[31:33, 31:33, 31:33].all()  # the cells around the axis at the neck
+    # the wide part of both bulbs (y within 0.125-0.3 of the neck) is not refined:
+    # a wall 2.2 h thick reads ~1.1 at most
+    assert not cells[:, 8:20, :].any() and not cells[:, 45:57, :].any()
+
+
+def test_explicit_boxes_add_cells():
+    box = ((0.2, 0.1, 0.3), (0.4, 0.25, 0.5))
+    cells, lam = refinement_region([], [], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box]))
+    centres = (np.arange(32) + 0.5) * DX
+    expect = [((c >= lo) & (c <= hi)) for c, lo, hi in zip([centres] * 3, box[0], box[1])]
+    want = expect[0][:, None, None] & expect[1][None, :, None] & expect[2][None, None, :]
+    np.testing.assert_array_equal(cells, want)
+    assert want.sum() == 7 * 5 * 6 and not lam.any()  # centres 6.5..12.5, 3.5..7.5, 10.5..15.5 dx
+    sheet = C.sheet(size=(0.3, 0.3), center=(0.5, 0.8, 0.5))
+    alone, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS)
+    both, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box]))
+    np.testing.assert_array_equal(both, alone | want)
+
+
+def test_halo_grows_by_exactly_halo_cells():
+    lam = np.zeros((20, 20, 20))
+    lam[10, 10, 10] = 2.0  # one hot node: its 8 cells 9..10 per axis
+    for halo in (0, 1, 2, 3):
+        cells = cells_from_lambda(lam, 1.5, halo)
+        idx = np.argwhere(cells)
+        np.testing.assert_array_equal(idx.min(0), [9 - halo] * 3)
+        np.testing.assert_array_equal(idx.max(0), [10 + halo] * 3)
+        assert cells.sum() == (2 + 2 * halo) ** 3
+    sheet = C.sheet(size=(0.4, 0.4), center=(0.5, 0.5, 0.5))
+    c0, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
+    c2, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=2))
+    np.testing.assert_array_equal(c2, ndimage.binary_dilation(c0, np.ones((3, 3, 3), bool), iterations=2))
+    lo0, hi0 = np.argwhere(c0).min(0), np.argwhere(c0).max(0)
+    lo2, hi2 = np.argwhere(c2).min(0), np.argwhere(c2).max(0)
+    np.testing.assert_array_equal(lo2, lo0 - 2)
+    np.testing.assert_array_equal(hi2, hi0 + 2)
+
+
+def test_collision_mesh_unchanged_and_params_checked():
+    sheet = C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5))
+    before = (sheet.vertices.copy(), sheet.faces.copy())
+    refinement_region([sheet], [True], (0, 0, 0), DX, DIMS)
+    np.testing.assert_array_equal(sheet.vertices, before[0])
+    np.testing.assert_array_equal(sheet.faces, before[1])
+    with pytest.raises(ValueError):
+        RegionParams(bandwidth=0.0)
+    with pytest.raises(ValueError):
+        RegionParams(halo=-1)
+    with pytest.raises(ValueError):
+        RegionParams(boxes=[((1, 1, 1), (0, 0, 0))])
+    with pytest.raises(ValueError):
+        refinement_region([sheet], [True, False], (0, 0, 0), DX, DIMS)
+
+
+def test_grid_density_speed():
+    # ~40k samples (the vertices of a fine sphere) on a 65^3 grid: ~0.3 s on one free
+    # core; the bound is loose for shared CI machines and only catches an accidental
+    # quadratic path
+    sphere = trimesh.creation.icosphere(subdivisions=6, radius=0.3)
+    sphere.apply_translation((0.5, 0.5, 0.5))
+    p, w = triangle_samples(sphere.vertices, sphere.faces, max_edge=1.0)  # no splitting
+    assert len(p) == 40962
+    dx = 1.0 / 64.0
+    t0 = time.perf_counter()
+    lam = kde_on_grid(p, w, (0, 0, 0), dx, (65, 65, 65), dx)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 5.0
+    # a sphere of radius 19 h reads ~1 on its surface; 5% for its curvature and
+    # for nodes lying up to half a cell off the surface (exp(-1/8) = 0.88 at worst)
+    on_surface = np.abs(np.linalg.norm(np.argwhere(np.ones(lam.shape, bool)) * dx - 0.5, axis=1) - 0.3) < 0.1 * dx
+    assert on_surface.sum() > 50
+    np.testing.assert_allclose(lam.reshape(-1)[on_surface], 1.0, rtol=0.05)
