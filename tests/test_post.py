@@ -172,3 +172,23 @@ def test_plot_energy(tmp_path):
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     assert [p.name for p in tmp_path.iterdir()] == ["energy.png"]
+
+
+def test_feature_edges_and_outline():
+    import trimesh
+
+    from abmpm.post.render import feature_edges
+
+    box = trimesh.creation.box(extents=(1.0, 0.1, 1.0))
+    assert len(feature_edges(box.vertices, box.faces)) == 12  # creases only, not the diagonals
+    sheet = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], dtype=float)
+    faces = np.array([[0, 2, 1], [0, 3, 2]])
+    edges = feature_edges(sheet, faces)
+    assert sorted(map(tuple, edges)) == [(0, 1), (0, 3), (1, 2), (2, 3)]  # the rim
+    cam = Camera(eye=(0.5, 3.0, 0.5), target=(0.5, 0.0, 0.5), up=(0.0, 0.0, -1.0), fov_deg=40,
+                 width=64, height=64)
+    tris = sheet[faces]
+    plain = render(np.zeros((0, 3)), None, cam, 0.1, triangles=tris).astype(int)
+    outlined = render(np.zeros((0, 3)), None, cam, 0.1, triangles=tris, edges=sheet[edges]).astype(int)
+    darker = (outlined.sum(axis=2) < plain.sum(axis=2) - 100).sum()
+    assert darker > 4 * 20  # four sides of ~20+ px

@@ -19,7 +19,10 @@ from abmpm.scene.loader import list_builtin_scenes, load_scene
 from abmpm.scene.model import Scene
 from abmpm.simulation import Simulation, sample_scene
 
-BUILTINS = ["dam_break", "jelly_drop", "mixed", "sand_pile"]
+BUILTINS = [
+    "blade_cut", "dam_break", "funnel", "jelly_drop", "letter_panel", "mixed", "plate_pour", "sand_pile",
+]
+COLLIDER_BUILTINS = ["blade_cut", "funnel", "letter_panel", "plate_pour"]
 
 # A valid, tiny scene (a few hundred particles) that the bad cases start from.
 GOOD = """\
@@ -74,6 +77,23 @@ def test_builtin_loads_and_runs(name):
     assert 0.015 <= scene.simulation.dx <= 0.03
     assert 1.0 <= scene.simulation.duration <= 3.0
     sim = Simulation(coarse(scene), device="cpu")
+    for _ in range(3):
+        sim.step()
+    p = sim.particles()
+    assert np.isfinite(p.x).all() and np.isfinite(p.v).all()
+
+
+@pytest.mark.parametrize("name", COLLIDER_BUILTINS)
+def test_collider_builtin_loads_and_runs(name):
+    scene = load_scene(name)
+    assert scene.colliders
+    sim = Simulation(coarse(scene), device="cpu")
+    tris = sim.collider_triangles()
+    assert tris.ndim == 3 and tris.shape[1:] == (3, 3) and len(tris) > 0
+    assert np.isfinite(tris).all()
+    lo, hi = np.array(scene.simulation.domain_min), np.array(scene.simulation.domain_max)
+    centre = tris.reshape(-1, 3).mean(axis=0)
+    assert np.all(centre > lo) and np.all(centre < hi)  # the collider is in the box
     for _ in range(3):
         sim.step()
     p = sim.particles()
@@ -174,6 +194,47 @@ CASES = {
         GOOD.replace("max = [0.2, 0.15, 0.2]", "max = [0.2, 0.15, 0.6]"),
         ["error: scene.toml: bodies[0]: body extends outside the domain", "axis z"],
     ),
+    "unknown_collider_shape": (
+        GOOD + '\n[[colliders]]\nshape = "plate"\n',
+        ['error: scene.toml: colliders[0].shape: unknown shape "plate" (choose from mesh, sheet, thin_box,'],
+    ),
+    "collider_without_shape": (
+        GOOD + "\n[[colliders]]\nsize = [0.3, 0.3]\n",
+        ["error: scene.toml: colliders[0].shape: required key missing (choose from mesh, sheet,"],
+    ),
+    "unknown_collider_key": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\nsizee = [0.3, 0.3]\n',
+        ["error: scene.toml: colliders[0].sizee: unknown key"],
+    ),
+    "negative_collider_friction": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\nfriction = -0.5\n',
+        ["error: scene.toml: colliders[0].friction: must be >= 0"],
+    ),
+    "unknown_collider_boundary": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\nboundary = "glue"\n',
+        ["error: scene.toml: colliders[0].boundary: must be one of sticky, slip, separate, got 'glue'"],
+    ),
+    "collider_missing_required_key": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\n\n[[colliders]]\nshape = "thin_box"\n',
+        ["error: scene.toml: colliders[1].size: required key missing"],
+    ),
+    "keyframes_decreasing_times": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\n'
+        "[[colliders.motion.keyframes]]\ntime = 0.5\n[[colliders.motion.keyframes]]\ntime = 0.2\n",
+        ["error: scene.toml: colliders[0].motion", "strictly increasing"],
+    ),
+    "keyframe_negative_time": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\n[[colliders.motion.keyframes]]\ntime = -1.0\n',
+        ["error: scene.toml: colliders[0].motion.keyframes[0].time: must be >= 0"],
+    ),
+    "collider_short_velocity": (
+        GOOD + '\n[[colliders]]\nshape = "sheet"\nmotion = { velocity = [1.0, 0.0] }\n',
+        ["error: scene.toml: colliders[0].motion.velocity: expected a list of 3 numbers"],
+    ),
+    "impossible_collider_geometry": (
+        GOOD + '\n[[colliders]]\nshape = "hourglass"\ncenter = [0.2, 0.2, 0.2]\nradius = 0.1\nneck_radius = 0.2\n',
+        ["error: scene.toml: colliders[0]: hourglass neck_radius must be smaller than radius"],
+    ),
     "toml_syntax": (
         GOOD.replace("[simulation]", "[simulation"),
         ["error: scene.toml: TOML syntax error:", "line 3"],
@@ -228,6 +289,25 @@ def test_missing_mesh_file(tmp_path, monkeypatch, capsys):
     text = GOOD + '\n[[bodies]]\nshape = "mesh"\nmaterial = "jelly"\nfile = "meshes/missing.obj"\n'
     code, err = run_cli(bad_scene(tmp_path, monkeypatch, text), capsys)
     assert_user_error(code, err, "missing.obj", "not found", "bodies[1].file")
+
+
+def test_missing_collider_mesh_file(tmp_path, monkeypatch, capsys):
+    text = GOOD + '\n[[colliders]]\nshape = "mesh"\nfile = "meshes/missing_sheet.obj"\n'
+    code, err = run_cli(bad_scene(tmp_path, monkeypatch, text), capsys)
+    assert_user_error(code, err, "missing_sheet.obj", "not found", "colliders[0].file")
+    assert len(err.strip().splitlines()) == 1, err
+
+
+def test_open_mesh_as_collider_is_fine(tmp_path, monkeypatch, capsys):
+    trimesh = pytest.importorskip("trimesh")
+    sheet = trimesh.Trimesh(vertices=[[-0.3, 0, -0.3], [0.3, 0, -0.3], [0.3, 0, 0.3], [-0.3, 0, 0.3]],
+                            faces=[[0, 2, 1], [0, 3, 2]])
+    (tmp_path / "meshes").mkdir()
+    sheet.export(tmp_path / "meshes" / "sheet.obj")
+    text = GOOD + '\n[[colliders]]\nshape = "mesh"\nfile = "meshes/sheet.obj"\ncenter = [0.2, 0.3, 0.2]\n'
+    code, err = run_cli(bad_scene(tmp_path, monkeypatch, text), capsys)
+    assert code == 0, err
+    assert (tmp_path / "out" / "colliders" / "collider_00001.ply").is_file()
 
 
 def test_open_mesh_as_solid(tmp_path, monkeypatch, capsys):

@@ -198,12 +198,18 @@ def _disk_frames(out: Path, last: int | None = None) -> list[tuple[int, Callable
     if last is not None:
         frames = [(n, p) for n, p in frames if n <= last]
     colliders = dict(_numbered(out / COLLIDERS_DIR, _COLLIDER_RE))
+    outline: dict[str, np.ndarray] = {}  # feature edges of the last face list seen
 
     def load(p: Path, c: Path | None) -> dict:
         f = read_particles_ply(p)
         if c is not None:
             v, faces = read_mesh_ply(c)
+            if "faces" not in outline or not np.array_equal(outline["faces"], faces):
+                from abmpm.post.render import feature_edges
+
+                outline.update(faces=faces, edges=feature_edges(v, faces))
             f["triangles"] = v[faces]
+            f["edges"] = v[outline["edges"]]
         return f
 
     return [(n, (lambda p=p, c=colliders.get(n): load(p, c))) for n, p in frames]
@@ -219,6 +225,12 @@ class _ColliderTrack:
     def __init__(self, sim):
         got = sim.collider_faces()
         self.faces = None if got is None else np.asarray(got[1], dtype=np.int64)
+        self.edges = None
+        if got is not None:
+            from abmpm.post.render import feature_edges
+
+            # outline (rims, holes, creases): rigid motion keeps it, so one pose will do
+            self.edges = feature_edges(np.asarray(got[0], dtype=np.float64), self.faces)
         self.vertices: dict[int, np.ndarray] = {}
         self._last: np.ndarray | None = None
 
@@ -233,10 +245,6 @@ class _ColliderTrack:
         self.vertices[sim.frame] = v
         return v
 
-    def triangles(self, frame: int) -> np.ndarray | None:
-        v = self.vertices.get(frame)
-        return None if v is None else v[self.faces]
-
     def attach(self, source):
         """Add this track's triangles to the frames of ``source`` that it has."""
         if not self:
@@ -244,9 +252,10 @@ class _ColliderTrack:
 
         def load(n, inner):
             f = dict(inner())
-            tris = self.triangles(n)
-            if tris is not None:
-                f["triangles"] = tris
+            v = self.vertices.get(n)
+            if v is not None:
+                f["triangles"] = v[self.faces]
+                f["edges"] = v[self.edges]
             return f
 
         return [(n, (lambda n=n, inner=inner: load(n, inner))) for n, inner in source]
@@ -260,6 +269,17 @@ def _speed_vmax(source) -> float:
         if len(s):
             vmax = max(vmax, float(np.percentile(s, 99)))
     return vmax if vmax > 0 else 1.0
+
+
+def _internal_kinetic_energy(frame: dict) -> float:
+    """Kinetic energy of the motion relative to the centre of mass (-1 if not finite)."""
+    m = frame["mass"].astype(np.float64)
+    v = frame["v"].astype(np.float64)
+    if len(m) == 0 or m.sum() <= 0.0:
+        return 0.0
+    v = v - (m[:, None] * v).sum(axis=0) / m.sum()
+    ke = float(0.5 * (m * (v * v).sum(axis=1)).sum())
+    return ke if math.isfinite(ke) else -1.0
 
 
 def _render_preview(
@@ -283,13 +303,12 @@ def _render_preview(
             f = load()
             img = render(
                 f["x"], _colors(f, scene, vmax), camera, _radius(f, densities), box=box,
-                triangles=f.get("triangles"),
+                triangles=f.get("triangles"), edges=f.get("edges"),
             )
-            v = f["v"].astype(np.float64)
-            ke = float(0.5 * (f["mass"].astype(np.float64) * (v * v).sum(axis=1)).sum())
-            if not math.isfinite(ke):
-                ke = -1.0
-            # poster: the frame with the most motion (last frame if nothing moves)
+            ke = _internal_kinetic_energy(f)
+            # poster: the frame with the most motion relative to the centre of mass, so
+            # that a body thrown or dropped as a whole shows its impact, not its flight
+            # (last frame if nothing moves)
             if poster["image"] is None or ke > poster["ke"] or max(ke, poster["ke"]) <= 0.0:
                 poster.update(ke=ke, image=img, frame=n)
             if on_frame is not None:

@@ -339,6 +339,8 @@ class Simulation:
             "substeps": self.substeps,
             "history": [h for h in self.history if h["frame"] <= frame],
             "scene": self.scene.name,
+            "mode": self.mode,
+            "next_id": self.solver.next_id,
         }
         return arrays, meta
 
@@ -353,4 +355,6 @@ class Simulation:
         self.dt = float(meta["dt"])
         self.substeps = int(meta["substeps"])
         self.history = list(meta["history"])
+        self.solver.next_id = int(meta.get("next_id", self.solver.next_id))
+        self.solver.reset_step_count(self.steps)
         self._last_good = self._state.numpy()

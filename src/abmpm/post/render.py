@@ -457,9 +457,12 @@ def render(
         a = float(triangle_alpha)
         rgb[front] = a * tri_rgb[front] + (1.0 - a) * rgb[front]
     if edges is not None and len(edges):
-        lo, hi = (np.asarray(box[0], float), np.asarray(box[1], float)) if box is not None else (x.min(0), x.max(0)) if n else (np.zeros(3), np.ones(3))
-        bias = 2e-3 * float(np.linalg.norm(hi - lo)) if np.all(np.isfinite(hi - lo)) else 0.0
-        _draw_lines(camera, edges, rgb, depth, edge_color, bias=bias, alpha=edge_alpha, write_depth=False)
+        seg = np.asarray(edges, dtype=np.float64).reshape(-1, 2, 3)
+        extent = float(np.linalg.norm(np.ptp(seg.reshape(-1, 3), axis=0)))
+        if box is not None:
+            extent = max(extent, float(np.linalg.norm(np.subtract(box[1], box[0]))))
+        bias = 2e-3 * extent if math.isfinite(extent) else 0.0  # lines on a surface win over it
+        _draw_lines(camera, seg, rgb, depth, edge_color, bias=bias, alpha=edge_alpha, write_depth=False)
     img = np.clip(rgb.reshape(h, w, 3) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return img
 

@@ -62,6 +62,40 @@ def node_index(g: GridSpec, i: int, j: int, k: int):
     return s * BLOCK_NODES + ((i & 3) * BLOCK + (j & 3)) * BLOCK + (k & 3)
 
 
+vec8i = wp.types.vector(length=8, dtype=wp.int32)
+
+
+@wp.func
+def stencil_slots(g: GridSpec, base: wp.vec3i):
+    """Slots of the (at most) 2x2x2 blocks a 3x3x3 stencil at ``base`` spans: one
+    table lookup per block instead of one per node (sparse grids)."""
+    s = vec8i()
+    b0 = base[0] >> 2
+    b1 = base[1] >> 2
+    b2 = base[2] >> 2
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                i = wp.min(b0 + a, g.blocks.shape[0] - 1)
+                j = wp.min(b1 + b, g.blocks.shape[1] - 1)
+                k = wp.min(b2 + c, g.blocks.shape[2] - 1)
+                s[a * 4 + b * 2 + c] = g.blocks[i, j, k]
+    return s
+
+
+@wp.func
+def stencil_node(g: GridSpec, slots: vec8i, base: wp.vec3i, i: int, j: int, k: int):
+    """node_index of stencil node base + (i, j, k) of a sparse grid, from the
+    stencil's block slots."""
+    x = base[0] + i
+    y = base[1] + j
+    z = base[2] + k
+    s = slots[((x >> 2) - (base[0] >> 2)) * 4 + ((y >> 2) - (base[1] >> 2)) * 2 + ((z >> 2) - (base[2] >> 2))]
+    if s < 0:
+        return -1
+    return s * BLOCK_NODES + ((x & 3) * BLOCK + (y & 3)) * BLOCK + (z & 3)
+
+
 @wp.func
 def node_coords(g: GridSpec, n: int):
     """Inverse of node_index for a storage index n."""

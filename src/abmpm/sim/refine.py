@@ -82,20 +82,28 @@ def split_particles(
         family[q] = parent
 
 
+# Refinement runs every REFINE_EVERY steps. In that time a particle moves less than
+# REFINE_EVERY * cfl < 2 fine cells, so a level-1 particle asks for the blocks of its
+# stencil grown by ACTIVATION_MARGIN nodes on each side (a span of 7 nodes, checked
+# every 3 nodes so that no 4-node block in it is missed), and a particle entering the
+# region is split at most a few steps late, inside the region's halo.
+REFINE_EVERY = 4
+ACTIVATION_MARGIN = wp.constant(2)
+
+
 @wp.kernel
 def flag_particle_blocks(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
                          wanted: wp.array3d(dtype=wp.int32)):
-    # a level-1 particle needs the blocks its 3x3x3 stencil touches
     p = wp.tid()
     if level[p] != g.level:
         return
-    base = stencil_base(g, x[p])
-    for a in range(2):
-        for bb in range(2):
-            for c in range(2):
-                i = (base[0] + 2 * a) >> 2
-                j = (base[1] + 2 * bb) >> 2
-                k = (base[2] + 2 * c) >> 2
+    base = stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN)
+    for a in range(3):
+        for bb in range(3):
+            for c in range(3):
+                i = wp.clamp(base[0] + 3 * a, 0, g.dims[0] - 1) >> 2
+                j = wp.clamp(base[1] + 3 * bb, 0, g.dims[1] - 1) >> 2
+                k = wp.clamp(base[2] + 3 * c, 0, g.dims[2] - 1) >> 2
                 if g.blocks[i, j, k] < 0:
                     wanted[i, j, k] = 1
 

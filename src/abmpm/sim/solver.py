@@ -27,7 +27,7 @@ from . import transfer
 from .colliders import ColliderSet, colour_field, colour_particles, empty_spec, grow_colour_field
 from .grid import Grid
 from .materials import MaterialParams
-from .refine import Refiner
+from .refine import REFINE_EVERY, Refiner
 from .state import FIELDS, ParticleState
 
 wp.set_module_options({"enable_backward": False})
@@ -71,6 +71,7 @@ class MPMSolver:
             if colliders is not None and not g.sparse:
                 colliders.colour(g)
         self.next_id = 0
+        self._steps = 0
         self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ
@@ -86,8 +87,9 @@ class MPMSolver:
         """Advance ``state`` in place from ``time`` by ``dt``. In place is safe: G2P
         reads and writes only its own particle, after P2G has read them all."""
         self.move_colliders(time)
-        if self.refiner is not None:
+        if self.refiner is not None and self._steps % REFINE_EVERY == 0:
             self.refine(state)
+        self._steps += 1
         if self.refiner is None:
             self._p2g(state, self.grid, dt)
         else:
@@ -132,6 +134,10 @@ class MPMSolver:
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
                     s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody],
         )
+
+    def reset_step_count(self, steps: int) -> None:
+        """Steps taken so far (refinement runs every REFINE_EVERY steps), for resuming."""
+        self._steps = steps
 
     # ------------------------------------------------------------------ colliders
 

@@ -19,7 +19,7 @@ from .colliders import (
     ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
     near_surface, node_bit, node_contact, stop_crossing,
 )
-from .grid import GridSpec, node_coords, node_index, node_position
+from .grid import GridSpec, node_coords, node_index, node_position, stencil_node, stencil_slots, vec8i
 from .materials import (
     MODEL_FLUID, MaterialParams, fluid_stress, fluid_volume_update, solid_stress, update_deformation,
 )
@@ -119,10 +119,17 @@ def _make_p2g(cpic: bool, sparse: bool):
             # CPIC: scatter only to nodes on the particle's side of every collider
             if cbody[p] >= 0:
                 mask = compatibility_mask(cp[p], cn[p], cbody[p], xp, colour, g, base, fx)
+        slots = vec8i()
+        if wp.static(sparse):
+            slots = stencil_slots(g, base)
         for i in range(3):
             for j in range(3):
                 for k in range(3):
-                    n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                    n = int(0)
+                    if wp.static(sparse):
+                        n = stencil_node(g, slots, base, i, j, k)
+                    else:
+                        n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
                     if wp.static(sparse):
                         if n < 0:
                             continue
@@ -154,10 +161,14 @@ def stencil_touches_active(g: GridSpec, base: wp.vec3i):
 
 @wp.func
 def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.vec3i):
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                if occupied[node_index(g, base[0] + i, base[1] + j, base[2] + k)] != 0:
+    # a cheap test on the stencil's 8 corners and centre (material reaching only
+    # edge midpoints of the stencil is left out of the overlap)
+    if occupied[node_index(g, base[0] + 1, base[1] + 1, base[2] + 1)] != 0:
+        return True
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                if occupied[node_index(g, base[0] + 2 * a, base[1] + 2 * b, base[2] + 2 * c)] != 0:
                     return True
     return False
 
@@ -232,12 +243,20 @@ def _make_g2p(cpic: bool, sparse: bool):
         w = bspline_weights(fx)
         new_v = wp.vec3(0.0)
         B = wp.mat33(0.0)
+        slots = vec8i()
+        if wp.static(sparse):
+            slots = stencil_slots(g, base)
         for i in range(3):
             for j in range(3):
                 for k in range(3):
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
-                    vi = grid_v[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
+                    n = int(0)
+                    if wp.static(sparse):
+                        n = stencil_node(g, slots, base, i, j, k)
+                    else:
+                        n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                    vi = grid_v[n]
                     new_v += weight * vi  # Eq. 5 / 11
                     B += weight * wp.outer(vi, dpos)
         if wp.static(cpic):
