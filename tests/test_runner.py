@@ -277,8 +277,8 @@ def test_collider_meshes_written_and_drawn(tmp_path):
     from abmpm.scene.model import Keyframe, Motion, SheetCollider
 
     sheet = SheetCollider(
-        size=(0.3, 0.3), center=(0.2, 0.3, 0.2), rotation=(0.0, 0.0, 20.0),
-        motion=Motion(keyframes=[Keyframe(time=0.0), Keyframe(time=0.1, translation=(0.0, -0.1, 0.0))]),
+        size=(0.3, 0.3), center=(0.2, 0.36, 0.2), rotation=(0.0, 0.0, 20.0),  # above the material
+        motion=Motion(keyframes=[Keyframe(time=0.0), Keyframe(time=0.1, translation=(0.0, -0.03, 0.0))]),
     )
     scene = tiny_scene().model_copy(update={"colliders": [sheet]})
     out = tmp_path / "out"
@@ -316,3 +316,20 @@ def test_collider_meshes_written_and_drawn(tmp_path):
     # a run that starts over removes the old collider meshes
     quiet_run(tiny_scene(), out, frames=1, preview=False)
     assert not any((out / "colliders").iterdir())
+
+
+def test_colliders_in_preview_without_frames(tmp_path):
+    """frames = false: no PLYs, but the preview still draws the (moving) collider."""
+    from abmpm.scene.model import Motion, SheetCollider
+
+    sheet = SheetCollider(size=(0.3, 0.3), center=(0.2, 0.36, 0.2), motion=Motion(velocity=(0.0, -0.5, 0.0)))
+    with_sheet = tiny_scene(frames=False).model_copy(update={"colliders": [sheet]})
+    a = quiet_run(with_sheet, tmp_path / "a", frames=1)
+    b = quiet_run(tiny_scene(frames=False), tmp_path / "b", frames=1)
+    assert not (tmp_path / "a" / "colliders").exists()
+    assert a["preview_frames"] == b["preview_frames"] == 2
+    import imageio.v2 as imageio
+
+    pa = imageio.imread(tmp_path / "a" / "preview.png").astype(int)
+    pb = imageio.imread(tmp_path / "b" / "preview.png").astype(int)
+    assert (np.abs(pa - pb).sum(axis=2) > 40).sum() > 500

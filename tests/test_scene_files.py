@@ -221,7 +221,7 @@ CASES = {
     "keyframes_decreasing_times": (
         GOOD + '\n[[colliders]]\nshape = "sheet"\n'
         "[[colliders.motion.keyframes]]\ntime = 0.5\n[[colliders.motion.keyframes]]\ntime = 0.2\n",
-        ["error: scene.toml: colliders[0].motion", "strictly increasing"],
+        ["error: scene.toml: colliders[0].motion", "time"],
     ),
     "keyframe_negative_time": (
         GOOD + '\n[[colliders]]\nshape = "sheet"\n[[colliders.motion.keyframes]]\ntime = -1.0\n',

@@ -216,7 +216,9 @@ def _disk_frames(out: Path, last: int | None = None) -> list[tuple[int, Callable
 
 
 class _ColliderTrack:
-    """Collider vertices of every output frame, kept while the simulation runs.
+    """What the preview needs of the colliders, taken from the Simulation as it runs:
+    the faces and their outline once, and (when no frames go to disk, where
+    ``colliders/collider_NNNNN.ply`` holds them) the vertices of every output frame.
 
     The faces never change, so a frame stores only its (V, 3) float32 vertices, and a
     frame whose colliders have not moved shares the previous frame's array.
@@ -237,12 +239,14 @@ class _ColliderTrack:
     def __bool__(self) -> bool:
         return self.faces is not None
 
-    def record(self, sim) -> np.ndarray:
+    def record(self, sim, keep: bool = True) -> np.ndarray:
+        """The colliders' vertices now (float32), kept for the preview if ``keep``."""
         v = np.asarray(sim.collider_faces()[0], dtype=np.float32)
         if self._last is not None and np.array_equal(v, self._last):
             v = self._last
         self._last = v
-        self.vertices[sim.frame] = v
+        if keep:
+            self.vertices[sim.frame] = v
         return v
 
     def attach(self, source):
@@ -496,7 +500,9 @@ def run(
     write_json(out / SCENE_FILE, scene.model_dump(mode="json"))
 
     kept: list[tuple[int, dict]] = []  # host frames for the preview when no PLY is written
-    colliders = _ColliderTrack(sim)  # collider vertices of every output frame
+    # collider vertices of every output frame: on disk next to the particle frames,
+    # or in memory for the preview when no frames are written
+    colliders = _ColliderTrack(sim)
     state = {"last_ckpt": resumed_from, "io_seconds": 0.0}
 
     def save_frame(force: bool = False) -> None:
@@ -505,7 +511,7 @@ def run(
             return
         p = _host_particles(sim)
         if colliders:
-            verts = colliders.record(sim)
+            verts = colliders.record(sim, keep=not out_cfg.frames and preview and out_cfg.preview)
             if out_cfg.frames:
                 write_mesh_ply(collider_path(out, n), verts, colliders.faces)
         if out_cfg.frames:

@@ -108,7 +108,7 @@ class MPMSolver:
         if store and self._tau.shape[0] < s.count:
             self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         wp.launch(
-            transfer.P2G[self.cpic, g.sparse], dim=s.count, device=self.device,
+            transfer.P2G[self.cpic, g.sparse, only_level >= 0], dim=s.count, device=self.device,
             inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.level, s.cp, s.cn, s.cbody,
                     self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
                     self._occupied(g), g.mv, g.m],

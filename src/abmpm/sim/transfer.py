@@ -47,7 +47,7 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
     return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
-def _make_p2g(cpic: bool, sparse: bool):
+def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
     @wp.kernel
     def p2g(
         x: wp.array(dtype=wp.vec3),
@@ -85,8 +85,9 @@ def _make_p2g(cpic: bool, sparse: bool):
         # the overlap where the coarse particles can feel them (Eq. 8). Elsewhere
         # nobody gathers from the coarse grid.
         p = wp.tid()
-        if only_level >= 0 and level[p] != only_level:
-            return
+        if wp.static(overlap_pass):
+            if level[p] != only_level:
+                return
         xp = x[p]
         base = stencil_base(g, xp)
         if wp.static(sparse):
@@ -107,9 +108,10 @@ def _make_p2g(cpic: bool, sparse: bool):
                 tau = solid_stress(mat, F[p], Cp, plastic[p])
             if store != 0:
                 tau_store[p] = tau
-        if overlap == 2:
-            if not stencil_occupied(g, grid_occupied, base):
-                return
+        if wp.static(overlap_pass):
+            if overlap == 2:
+                if not stencil_occupied(g, grid_occupied, base):
+                    return
         # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
         # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
         affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp
@@ -133,10 +135,10 @@ def _make_p2g(cpic: bool, sparse: bool):
                     if wp.static(sparse):
                         if n < 0:
                             continue
-                    if overlap == 1:
-                        grid_occupied[n] = 1
-                    elif overlap == 2:
-                        if grid_occupied[n] == 0:
+                    if wp.static(overlap_pass):
+                        if overlap == 1:
+                            grid_occupied[n] = 1
+                        elif grid_occupied[n] == 0:
                             continue
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
@@ -315,5 +317,6 @@ def _make_g2p(cpic: bool, sparse: bool):
 
 
 _VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
-P2G = {key: _make_p2g(*key) for key in _VARIANTS}
+# P2G[cpic, sparse, overlap_pass]: the overlap pass is the level-split coarse P2G of adaptive mode
+P2G = {(c, s, o): _make_p2g(c, s, o) for c, s in _VARIANTS for o in ((False, True) if not s else (False,))}
 G2P = {key: _make_g2p(*key) for key in _VARIANTS}
