@@ -281,6 +281,8 @@ class MeshCollider(_ColliderBase):
     file: Path
     scale: float | tuple[PositiveFloat, PositiveFloat, PositiveFloat] = 1.0
 
+    _positive_scale = field_validator("scale")(MeshBody._positive_scale.__func__)
+
 
 class SheetCollider(_ColliderBase):
     """Zero-thickness rectangle, normal +y before rotation."""

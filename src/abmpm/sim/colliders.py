@@ -48,6 +48,13 @@ FAR = 1.0e10
 # cells: closer than this a point is on the surface; its direction from the closest
 # point is float32 noise, so the face normal stands in for it
 ON_SURFACE = 1.0e-3
+# cells: a node this close to a surface is inside it for CPIC (compatible with no
+# particle near that surface); otherwise a node lying on a sheet couples both sides
+ON_NODE = 1.0e-2
+# cells: before its crossing test a particle near a surface steps this far back
+# along its colour direction, so the ray never starts on the surface itself (a ray
+# from a point on a triangle may miss it, and a hit at t = 0 would freeze it there)
+RAY_BACKOFF = 2.0e-2
 
 
 @wp.struct
@@ -85,12 +92,14 @@ def rigid_velocity(b: ColliderBody, x: wp.vec3):
 
 
 @wp.func
-def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, xi: wp.vec3, n: int):
+def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, xi: wp.vec3, n: int, dx: float):
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
     if cbody < 0 or n < 0:
         return True  # particle far from every surface, or an inactive node
     if f.body[n] < 0:
         return True  # node far from every surface
+    if f.dist[n] < ON_NODE * dx:
+        return False  # a node on a surface belongs to neither side
     ni = f.dir[n]
     ci = xi - f.dist[n] * ni
     return not (wp.dot(xi - cp, cn) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
@@ -108,7 +117,7 @@ def compatibility_mask(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: Col
         for j in range(3):
             for k in range(3):
                 xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                if compatible(cp, cn, cbody, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k)):
+                if compatible(cp, cn, cbody, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
                     mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
@@ -179,7 +188,8 @@ class Crossing:
 
 
 @wp.func
-def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.vec3, dt: float, cbody: int):
+def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.vec3, dt: float, cbody: int,
+                  cn: wp.vec3):
     """Continuous collision: if the particle's motion relative to the collider crosses a
     surface, stop it just before the hit, on its own side."""
     out = Crossing()
@@ -188,6 +198,7 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
     start = x_old
     if cbody >= 0:
         start = x_old + dt * rigid_velocity(spec.bodies[cbody], x_old)  # where x_old is carried by the body
+        start = start + (RAY_BACKOFF * g.dx) * cn  # off the surface, on the particle's own side
     seg = x_new - start
     L = wp.length(seg)
     if L < 1.0e-9 * g.dx:

@@ -195,6 +195,9 @@ def grid_update(
     if m > 0.0:
         vi = grid_mv[n] / m + dt * g.gravity
         xi = node_position(g, node_coords(g, n))
+        if spec.enabled != 0:
+            vi = node_contact(spec, colour, g, vi, xi, n)
+        # the domain walls have the last word: a collider never pushes material through them
         tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
         for d in range(3):
             if xi[d] <= g.domain_lo[d] + tol:
@@ -205,8 +208,6 @@ def grid_update(
                 nrm = wp.vec3(0.0)
                 nrm[d] = -1.0
                 vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
-        if spec.enabled != 0:
-            vi = node_contact(spec, colour, g, vi, xi, n)
     grid_v[n] = vi
     grid_mv[n] = wp.vec3(0.0)
     grid_m[n] = 0.0
@@ -267,7 +268,9 @@ def _make_g2p(cpic: bool, sparse: bool):
                 # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
                 mask = compatibility_mask(cp[p], cn[p], cb, xp, colour, g, base, fx)
                 if mask != ALL_NODES:
-                    v_bar = boundary_velocity(spec, cb, cn[p], xp, v[p])
+                    # the particle's velocity advanced by gravity like the grid's, then
+                    # projected by the collider's boundary type
+                    v_bar = boundary_velocity(spec, cb, cn[p], xp, v[p] + dt * g.gravity)
                     for i in range(3):
                         for j in range(3):
                             for k in range(3):
@@ -292,7 +295,7 @@ def _make_g2p(cpic: bool, sparse: bool):
             # no crossing: stop at the surface on the particle's own side
             cb = cbody[p]
             if cb >= 0 or near_surface(colour, g, xn):
-                hit = stop_crossing(spec, g, xp, xn, dt, cb)
+                hit = stop_crossing(spec, g, xp, xn, dt, cb, cn[p])
                 if hit.hit != 0:
                     xn = hit.x
                     new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
