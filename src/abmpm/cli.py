@@ -71,9 +71,13 @@ def _stderr():
 def _cmd_run(args) -> int:
     from abmpm.runner import run
     from abmpm.scene.loader import load_scene
+    from abmpm.scene.model import with_mode
 
     scene = load_scene(args.scene)
-    out = Path(args.out) if args.out else Path("out") / scene.name
+    if args.mode:
+        scene = with_mode(scene, args.mode)
+    default_out = Path("out") / (f"{scene.name}_{args.mode}" if args.mode else scene.name)
+    out = Path(args.out) if args.out else default_out
     con = _stderr()
     label = args.scene if os.path.exists(args.scene) else f"{args.scene} (built-in)"
     if not args.quiet:
@@ -224,6 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--device", "-d", metavar="DEVICE",
                    help="cpu, cuda or cuda:N (default: the scene's, else cuda when available)")
     r.add_argument("--frames", "-n", type=int, metavar="N", help="number of frames (default: duration * fps)")
+    r.add_argument("--mode", choices=["original", "adaptive", "finest"],
+                   help="refinement mode, overriding the scene's (default out: out/<scene>_<mode>/)")
     r.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in the output folder")
     r.add_argument("--no-preview", action="store_true", help="do not render preview.mp4 / preview.png")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")

@@ -184,6 +184,8 @@ def _colors(frame: dict, scene: Scene, vmax: float | None) -> np.ndarray:
     from abmpm.post.render import colors_by_level, colors_by_material, colors_by_speed
 
     mode = scene.output.color_by
+    if mode == "auto":
+        mode = "level" if scene.simulation.refinement.mode == "adaptive" else "material"
     if mode == "speed":
         return colors_by_speed(frame["v"], vmax=vmax)
     if mode == "level":
@@ -573,7 +575,9 @@ def run(
             "status": status,
             "message": message,
             "device": str(sim.device),
+            "mode": sim.mode,
             "particle_count": int(sim.particle_count),
+            "particle_count_per_level": [int(c) for c in sim.history[-1]["count_per_level"]],
             "frames": int(sim.history[-1]["frame"]),  # last completed (good) frame
             "frames_requested": total,
             "fps": scene.simulation.fps,

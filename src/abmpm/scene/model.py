@@ -357,12 +357,21 @@ class Output(_Strict):
     frames: bool = True
     frame_every: int = Field(1, ge=1, description="write every N-th frame")
     preview: bool = True
-    color_by: Literal["material", "speed", "level"] = "material"
+    color_by: Literal["auto", "material", "speed", "level"] = Field(
+        "auto", description="auto: by level in adaptive mode (blue original, white subdivided), else by material"
+    )
     checkpoint_every: int = Field(10, ge=1, description="write a checkpoint every N frames")
     usd: bool = False
 
 
 # --------------------------------------------------------------------------- scene
+
+
+def with_mode(scene: "Scene", mode: str) -> "Scene":
+    """The same scene run in another refinement mode (original, adaptive, finest)."""
+    st = scene.simulation
+    refinement = st.refinement.model_copy(update={"mode": mode})
+    return scene.model_copy(update={"simulation": st.model_copy(update={"refinement": refinement})})
 
 
 class Scene(_Strict):
