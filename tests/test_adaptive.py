@@ -182,3 +182,57 @@ def test_narrow_slit_adaptive_drains_like_finest_and_original_clogs():
     assert o < 0.3 * f, passed
     # the bound: adaptive within 15% of finest at the end
     assert abs(a - f) < 0.15 * f, passed
+
+
+# --------------------------------------------------------------------------- merge
+
+
+@settings(max_examples=10, deadline=None)
+@given(n=st.integers(1, 30), seed=st.integers(0, 2**31 - 1))
+def test_merge_after_split_conserves_mass_and_momentum(n, seed):
+    from abmpm.sim.refine import merge_families
+
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0.2, 0.8, (n, 3)).astype(np.float32)
+    v = rng.normal(0, 2.0, (n, 3)).astype(np.float32)
+    C = rng.normal(0, 5.0, (n, 3, 3)).astype(np.float32)
+    F = (np.eye(3) + rng.normal(0, 0.1, (n, 3, 3))).astype(np.float32)
+    mass = rng.uniform(1e-4, 1e-2, n).astype(np.float32)
+    children = split_everything(x, v, C, F, mass, 2)
+    merged, k = merge_families(children, np.zeros(len(children["x"]), dtype=bool), 2)
+    assert k == n and len(merged["x"]) == n and np.all(merged["level"] == 0)
+    assert merged["mass"].astype(np.float64).sum() == mass.astype(np.float64).sum()  # m/8 x 8: exact
+    P0 = (mass[:, None].astype(np.float64) * v).sum(axis=0)
+    P = (merged["mass"][:, None].astype(np.float64) * merged["v"]).sum(axis=0)
+    scale = (mass.astype(np.float64) * np.linalg.norm(v, axis=1)).sum()
+    assert np.abs(P - P0).max() <= 1e-5 * scale  # float32 round-off of split and average
+    # each family comes back as its parent: same id, centre of mass at the parent
+    order = np.argsort(merged["id"])
+    assert np.allclose(merged["x"][order], x, atol=1e-6)
+
+
+def test_families_merge_back_after_leaving_the_region():
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            dx=0.05, fps=20,
+            refinement={"mode": "adaptive", "merge": True, "boxes": [((0, 0.6, 0), (1, 0.75, 1))]}),
+        materials=[abmpm.Elastic(name="jelly", youngs_modulus=3e4)],
+        bodies=[abmpm.SphereBody(material="jelly", center=(0.5, 0.9, 0.5), radius=0.08)],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    n0 = sim.particle_count
+    m0 = sim.diagnostics()["total_mass"]
+    levels, momentum = [], []
+
+    def record(s):
+        d = s.diagnostics()
+        levels.append(d["count_per_level"])
+        momentum.append(d["momentum"][1])
+
+    sim.advance(frames=7, callback=record)  # falls through the band, not yet at the floor
+    assert max(c[1] for c in levels) > 0  # it was refined in the band
+    assert levels[-1] == [n0, 0]  # and merged back to the original particles below it
+    assert sim.diagnostics()["total_mass"] == m0
+    # free fall: momentum grows by M g frame_dt per frame through split and merge (1e-4: float32)
+    steps = np.diff(momentum)
+    assert np.allclose(steps, -m0 * 9.81 * sim.frame_dt, rtol=1e-4), steps

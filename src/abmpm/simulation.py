@@ -20,7 +20,10 @@ from .errors import AbmpmError, SimulationBlowUp
 from .geometry.sampling import particle_volume, sample_body
 from .scene.model import FACES, Scene
 from .geometry.placement import collider_mesh
+from scipy.ndimage import binary_dilation
+
 from .sim.colliders import ColliderSet
+from .sim.refine import merge_families
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import material_params, wave_speed
 from .sim.solver import MPMSolver, SolverConfig
@@ -255,19 +258,36 @@ class Simulation:
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
         diag = self._diagnostics(snap)
-        if diag["max_speed"] * self.dt > self.dx:
+        if diag["max_speed"] * self.dt > self.finest_active_dx:
             self.frame -= 1
             raise SimulationBlowUp(
                 f"simulation blew up at step {self.steps} (t = {self.time + self.frame_dt:.4f} s): "
                 f"max speed {diag['max_speed']:.3g} m/s moves a particle more than one cell per step "
-                f"(dx = {self.dx}, dt = {self.dt:.3g}); last good frame is {self.frame}. "
+                f"(dx = {self.finest_active_dx}, dt = {self.dt:.3g}); last good frame is {self.frame}. "
                 f"Lower cfl / max_dt or stiffness."
             )
         self._last_good = snap
         self.history.append(diag)
         self._choose_dt(diag["max_speed"])
+        if self.mode == "adaptive" and self.scene.simulation.refinement.merge:
+            self._merge(snap)
         if self.frame % SORT_EVERY_FRAMES == 0:
             self.solver.sort_by_cell(self._state)
+
+    def _merge(self, snap: dict[str, np.ndarray]) -> None:
+        """Merge families that left the region (by the margin) back into level-0 particles."""
+        r = self.scene.simulation.refinement
+        region = self.solver.refiner.region_cells
+        if r.merge_margin:
+            region = binary_dilation(region, iterations=r.merge_margin)
+        g = self.solver.grid
+        origin = np.array([g.spec.origin[a] for a in range(3)])
+        cell = np.clip(((snap["x"] - origin) / g.dx).astype(int), 0, np.array(region.shape) - 1)
+        keep_fine = region[cell[:, 0], cell[:, 1], cell[:, 2]]
+        merged, n = merge_families(snap, keep_fine, r.factor)
+        if n:
+            self._load_arrays(merged)
+            self.solver.colour_particles(self._state)
 
     # ------------------------------------------------------------------ inspection
 

@@ -69,6 +69,8 @@ class Refinement(_Strict):
     bandwidth: float = Field(1.0, gt=0, description="Gaussian bandwidth h of the density, in coarse cells")
     halo: int = Field(1, ge=0, description="refined cells grow by this many coarse cells")
     boxes: list[tuple[Vec3, Vec3]] = Field(default_factory=list, description="extra boxes to refine, [min, max]")
+    merge: bool = Field(False, description="merge split families back once they have left the region")
+    merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
 
     @property
     def split_count(self) -> int:

@@ -191,3 +191,64 @@ class Refiner:
         wp.launch(flag_particle_blocks, dim=state.count, inputs=[state.x, state.level, self.fine.spec],
                   outputs=[self.wanted], device=self.device)
         return self._allocate()
+
+
+def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> tuple[dict[str, np.ndarray], int]:
+    """Merge back families of split particles (beyond the paper; switchable).
+
+    A family (the b^3 children of one parent) merges into one level-0 particle when
+    none of its children is flagged in ``keep_fine`` (per particle: inside the region
+    grown by the hysteresis margin) and it is still compact: every child within one
+    parent lattice spacing of the family's centre of mass. The merged particle has
+    the summed mass and volume, the centre of mass, the mass-averaged velocity
+    (linear momentum conserved to round-off), and mass-averaged C, F and plastic
+    state; it takes back the parent's id. Host-side, once per frame.
+    """
+    ns = b**3
+    fine = (a["level"] == 1) & (a["family"] >= 0)
+    if not fine.any():
+        return a, 0
+    fam_ids, inv, counts = np.unique(a["family"][fine], return_inverse=True, return_counts=True)
+    idx = np.nonzero(fine)[0]
+    m = a["mass"][idx].astype(np.float64)
+    M = np.bincount(inv, m)
+    com = np.stack([np.bincount(inv, m * a["x"][idx, k]) for k in range(3)], axis=1) / M[:, None]
+    dist = np.linalg.norm(a["x"][idx] - com[inv], axis=1)
+    h_parent = np.cbrt(np.bincount(inv, a["volume"][idx].astype(np.float64)))
+    spread = np.zeros(len(fam_ids))
+    np.maximum.at(spread, inv, dist)
+    blocked = np.zeros(len(fam_ids), dtype=bool)
+    np.logical_or.at(blocked, inv, keep_fine[idx])
+    ok = (counts == ns) & ~blocked & (spread <= h_parent)
+    if not ok.any():
+        return a, 0
+    sel = ok[inv]  # children (positions in idx) that merge
+    members, groups = idx[sel], inv[sel]
+    merged_ids = np.nonzero(ok)[0]
+    remap = np.full(len(fam_ids), -1)
+    remap[merged_ids] = np.arange(len(merged_ids))
+    g = remap[groups]
+    k = len(merged_ids)
+    mm = a["mass"][members].astype(np.float64)
+    Mg = np.bincount(g, mm, minlength=k)
+
+    def mass_average(field):
+        f = a[field][members].astype(np.float64).reshape(len(members), -1)
+        out = np.stack([np.bincount(g, mm * f[:, c], minlength=k) for c in range(f.shape[1])], axis=1) / Mg[:, None]
+        return out.reshape((k,) + a[field].shape[1:]).astype(a[field].dtype)
+
+    first = np.zeros(k, dtype=np.int64)
+    first[g[::-1]] = members[::-1]  # one representative child per family
+    new = {
+        "x": mass_average("x"), "v": mass_average("v"), "C": mass_average("C"), "F": mass_average("F"),
+        "plastic": mass_average("plastic"),
+        "mass": Mg.astype(a["mass"].dtype),
+        "volume": np.bincount(g, a["volume"][members].astype(np.float64), minlength=k).astype(a["volume"].dtype),
+        "material": a["material"][first], "level": np.zeros(k, dtype=a["level"].dtype),
+        "id": fam_ids[merged_ids].astype(a["id"].dtype), "family": np.full(k, -1, dtype=a["family"].dtype),
+        "cp": a["cp"][first], "cn": a["cn"][first], "cbody": np.full(k, -1, dtype=a["cbody"].dtype),
+    }
+    stay = np.ones(len(a["x"]), dtype=bool)
+    stay[members] = False
+    out = {name: np.concatenate([a[name][stay], new[name]]) for name in a}
+    return out, k
