@@ -142,17 +142,41 @@ def safe_log(s: float):
     return wp.log(wp.max(s, 1.0e-6))
 
 
+@wp.struct
+class Hencky:
+    """F = U exp(diag(eps)) V^T: the principal log (Hencky) strains of F."""
+
+    U: wp.mat33
+    eps: wp.vec3
+    V: wp.mat33
+
+
 @wp.func
-def hencky_kirchhoff(mu: float, lam: float, F: wp.mat33):
-    # St. Venant-Kirchhoff in log strain: tau = U (2 mu eps + lam tr(eps) I) U^T
+def hencky(F: wp.mat33):
     U = wp.mat33()
     sig = wp.vec3()
     V = wp.mat33()
     wp.svd3(F, U, sig, V)
-    eps = wp.vec3(safe_log(sig[0]), safe_log(sig[1]), safe_log(sig[2]))
-    tr = eps[0] + eps[1] + eps[2]
-    d = 2.0 * mu * eps + wp.vec3(lam * tr)
-    return U * wp.diag(d) * wp.transpose(U)
+    h = Hencky()
+    h.U = U
+    h.V = V
+    h.eps = wp.vec3(safe_log(sig[0]), safe_log(sig[1]), safe_log(sig[2]))
+    return h
+
+
+@wp.func
+def from_hencky(h: Hencky, eps: wp.vec3):
+    # U exp(diag(eps)) V^T with new principal log strains
+    return h.U * wp.diag(wp.vec3(wp.exp(eps[0]), wp.exp(eps[1]), wp.exp(eps[2]))) * wp.transpose(h.V)
+
+
+@wp.func
+def hencky_kirchhoff(mu: float, lam: float, F: wp.mat33):
+    # St. Venant-Kirchhoff in log strain: tau = U (2 mu eps + lam tr(eps) I) U^T
+    h = hencky(F)
+    tr = h.eps[0] + h.eps[1] + h.eps[2]
+    d = 2.0 * mu * h.eps + wp.vec3(lam * tr)
+    return h.U * wp.diag(d) * wp.transpose(h.U)
 
 
 @wp.func
@@ -192,17 +216,14 @@ class Deformation:
 @wp.func
 def sand_return_mapping(mat: MaterialParams, F: wp.mat33, plastic: float):
     # Drucker-Prager projection in Hencky strain (Klar et al. 2016, Section 7.3.1)
-    U = wp.mat33()
-    sig = wp.vec3()
-    V = wp.mat33()
-    wp.svd3(F, U, sig, V)
-    eps = wp.vec3(safe_log(sig[0]), safe_log(sig[1]), safe_log(sig[2]))
+    h = hencky(F)
+    eps = h.eps
     tr = eps[0] + eps[1] + eps[2]
     out = Deformation()
     out.plastic = plastic
     if tr >= 0.0:
         # expansion: cohesionless sand carries no tension, project to the cone tip
-        out.F = U * wp.transpose(V)
+        out.F = h.U * wp.transpose(h.V)
         out.plastic = plastic + tr
         return out
     dev = eps - wp.vec3(tr / 3.0)
@@ -211,8 +232,7 @@ def sand_return_mapping(mat: MaterialParams, F: wp.mat33, plastic: float):
     if dgamma <= 0.0 or dev_norm < 1.0e-12:
         out.F = F  # inside the yield cone
         return out
-    h = eps - (dgamma / dev_norm) * dev
-    out.F = U * wp.diag(wp.vec3(wp.exp(h[0]), wp.exp(h[1]), wp.exp(h[2]))) * wp.transpose(V)
+    out.F = from_hencky(h, eps - (dgamma / dev_norm) * dev)
     return out
 
 
@@ -236,15 +256,10 @@ def snow_return_mapping(mat: MaterialParams, F: wp.mat33, plastic: float):
 @wp.func
 def maxwell_relaxation(mat: MaterialParams, F: wp.mat33, dt: float):
     # the deviatoric Hencky strain decays with the relaxation time; volume is kept
-    U = wp.mat33()
-    sig = wp.vec3()
-    V = wp.mat33()
-    wp.svd3(F, U, sig, V)
-    eps = wp.vec3(safe_log(sig[0]), safe_log(sig[1]), safe_log(sig[2]))
-    vol = (eps[0] + eps[1] + eps[2]) / 3.0
+    h = hencky(F)
+    vol = (h.eps[0] + h.eps[1] + h.eps[2]) / 3.0
     decay = wp.exp(-dt / mat.relaxation_time)
-    e = wp.vec3(vol) + decay * (eps - wp.vec3(vol))
-    return U * wp.diag(wp.vec3(wp.exp(e[0]), wp.exp(e[1]), wp.exp(e[2]))) * wp.transpose(V)
+    return from_hencky(h, wp.vec3(vol) + decay * (h.eps - wp.vec3(vol)))
 
 
 @wp.func
