@@ -33,15 +33,21 @@ def split_everything(x, v, C, F, mass, b):
     return state.numpy()
 
 
-@settings(max_examples=15, deadline=None)
-@given(n=st.integers(1, 40), b=st.sampled_from([2, 3]), seed=st.integers(0, 2**31 - 1))
-def test_split_conserves_mass_and_momentum(n, b, seed):
+def random_particles(n, seed):
+    """Positions, velocities, affine C, deformation F near identity and masses."""
     rng = np.random.default_rng(seed)
     x = rng.uniform(0.2, 0.8, (n, 3)).astype(np.float32)
     v = rng.normal(0, 2.0, (n, 3)).astype(np.float32)
     C = rng.normal(0, 5.0, (n, 3, 3)).astype(np.float32)
     F = (np.eye(3) + rng.normal(0, 0.1, (n, 3, 3))).astype(np.float32)
     mass = rng.uniform(1e-4, 1e-2, n).astype(np.float32)
+    return x, v, C, F, mass
+
+
+@settings(max_examples=15, deadline=None)
+@given(n=st.integers(1, 40), b=st.sampled_from([2, 3]), seed=st.integers(0, 2**31 - 1))
+def test_split_conserves_mass_and_momentum(n, b, seed):
+    x, v, C, F, mass = random_particles(n, seed)
     out = split_everything(x, v, C, F, mass, b)
     ns = b**3
     assert len(out["x"]) == n * ns and np.all(out["level"] == 1)
@@ -192,12 +198,7 @@ def test_narrow_slit_adaptive_drains_like_finest_and_original_clogs():
 def test_merge_after_split_conserves_mass_and_momentum(n, seed):
     from abmpm.sim.refine import merge_families
 
-    rng = np.random.default_rng(seed)
-    x = rng.uniform(0.2, 0.8, (n, 3)).astype(np.float32)
-    v = rng.normal(0, 2.0, (n, 3)).astype(np.float32)
-    C = rng.normal(0, 5.0, (n, 3, 3)).astype(np.float32)
-    F = (np.eye(3) + rng.normal(0, 0.1, (n, 3, 3))).astype(np.float32)
-    mass = rng.uniform(1e-4, 1e-2, n).astype(np.float32)
+    x, v, C, F, mass = random_particles(n, seed)
     children = split_everything(x, v, C, F, mass, 2)
     merged, k = merge_families(children, np.zeros(len(children["x"]), dtype=bool), 2)
     assert k == n and len(merged["x"]) == n and np.all(merged["level"] == 0)

@@ -75,6 +75,7 @@ class MPMSolver:
         self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ
+        self._cmask = self._no_occ
 
     @property
     def grid(self) -> Grid:
@@ -110,9 +111,17 @@ class MPMSolver:
         wp.launch(
             transfer.P2G[self.cpic, g.sparse, only_level >= 0], dim=s.count, device=self.device,
             inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.level, s.cp, s.cn, s.cbody,
-                    self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
+                    self._cmask_for(s), self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
                     self._occupied(g), g.mv, g.m],
         )
+
+    def _cmask_for(self, s: ParticleState):
+        # per-particle compatibility mask, written by P2G and read by G2P (CPIC only)
+        if not self.cpic:
+            return self._no_occ
+        if self._cmask.shape[0] < s.capacity:
+            self._cmask = wp.zeros(s.capacity, dtype=wp.int32, device=self.device)
+        return self._cmask
 
     def _occupied(self, g: Grid):
         # coarse nodes reached by level-0 particles (adaptive mode only)
@@ -132,7 +141,7 @@ class MPMSolver:
         wp.launch(
             transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
-                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody],
+                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody, self._cmask_for(s)],
         )
 
     def reset_step_count(self, steps: int) -> None:

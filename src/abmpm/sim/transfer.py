@@ -16,7 +16,7 @@ wp.set_module_options({"enable_backward": False})
 
 from .boundary import boundary_response
 from .colliders import (
-    ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
+    PARTICLE_BAND, rigid_velocity, ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
     near_surface, node_bit, node_contact, stop_crossing,
 )
 from .grid import GridSpec, node_coords, node_index, node_position, stencil_node, stencil_slots, vec8i
@@ -62,6 +62,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         cp: wp.array(dtype=wp.vec3),
         cn: wp.array(dtype=wp.vec3),
         cbody: wp.array(dtype=wp.int32),
+        cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
         colour: ColourField,
@@ -121,6 +122,8 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
             # CPIC: scatter only to nodes on the particle's side of every collider
             if cbody[p] >= 0:
                 mask = compatibility_mask(cp[p], cn[p], cbody[p], xp, colour, g, base, fx)
+                if level[p] == g.level:
+                    cmask[p] = mask  # G2P from this grid reuses it
         slots = vec8i()
         if wp.static(sparse):
             slots = stencil_slots(g, base)
@@ -235,6 +238,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         cp: wp.array(dtype=wp.vec3),
         cn: wp.array(dtype=wp.vec3),
         cbody: wp.array(dtype=wp.int32),
+        cmask: wp.array(dtype=wp.int32),
     ):
         # Eqs. 11-12: a particle gathers from its own level's grid only
         p = wp.tid()
@@ -266,7 +270,7 @@ def _make_g2p(cpic: bool, sparse: bool):
             cb = cbody[p]
             if cb >= 0:
                 # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
-                mask = compatibility_mask(cp[p], cn[p], cb, xp, colour, g, base, fx)
+                mask = cmask[p]  # from this step's P2G
                 if mask != ALL_NODES:
                     # the particle's velocity advanced by gravity like the grid's, then
                     # projected by the collider's boundary type
@@ -293,16 +297,27 @@ def _make_g2p(cpic: bool, sparse: bool):
         xn = xp + dt * new_v
         if wp.static(cpic):
             # no crossing: stop at the surface on the particle's own side
+            # A particle farther from every surface than it moves (relative to the
+            # collider) cannot cross one: only the others cast the ray. Particles
+            # outside the band last step are farther than a step, hence never cast.
             cb = cbody[p]
-            if cb >= 0 or near_surface(colour, g, xn):
-                hit = stop_crossing(spec, g, xp, xn, dt, cb, cn[p])
-                if hit.hit != 0:
-                    xn = hit.x
-                    new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+            reach = PARTICLE_BAND * g.dx
+            if cb >= 0:
+                move = wp.length(xn - xp) + dt * wp.length(rigid_velocity(spec.bodies[cb], xp))
+                reach = wp.length(xp - cp[p]) + move + 0.01 * g.dx
+                if move >= wp.length(xp - cp[p]) - 0.01 * g.dx:
+                    hit = stop_crossing(spec, g, xp, xn, dt, cb, cn[p])
+                    if hit.hit != 0:
+                        xn = hit.x
+                        new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
             c = Colour()
             c.body = -1
             if near_surface(colour, g, xn):
-                c = colour_point(spec, g, xn)  # colour for the next step's transfers
+                # colour for the next step's transfers; the new closest point lies
+                # within the old distance plus the motion (triangle inequality)
+                c = colour_point(spec, g, xn, reach)
+                if c.body < 0 and reach < PARTICLE_BAND * g.dx:
+                    c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx)
             cp[p] = c.cp
             cn[p] = c.cn
             cbody[p] = c.body
