@@ -112,6 +112,11 @@ ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
 def compatibility_mask(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, g: GridSpec,
                        base: wp.vec3i, fx: wp.vec3):
     """Bit (9 i + 3 j + k) set when stencil node (i, j, k) is compatible with the particle."""
+    # Every stencil node lies within 1.5 dx |n|_1 of x_p along n, so a particle farther
+    # than that from its tangent plane has no node behind it: all compatible (exact).
+    reach = 1.5 * g.dx * (wp.abs(cn[0]) + wp.abs(cn[1]) + wp.abs(cn[2]))
+    if wp.dot(xp - cp, cn) > reach + 1.0e-3 * g.dx:
+        return ALL_NODES
     mask = int(0)
     for i in range(3):
         for j in range(3):
