@@ -287,7 +287,7 @@ class Simulation:
         merged, n = merge_families(snap, keep_fine, r.factor)
         if n:
             self._load_arrays(merged)
-            self.solver.colour_particles(self._state)
+            self.solver.adopt(self._state)
 
     # ------------------------------------------------------------------ inspection
 
@@ -343,6 +343,7 @@ class Simulation:
                 raise ValueError(f"{k}: expected shape {current[k].shape}, got {np.shape(a)}")
             current[k][slot] = np.asarray(a, dtype=current[k].dtype)
         self._load_arrays(current)
+        self.solver.adopt(self._state)
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -377,4 +378,5 @@ class Simulation:
         self.history = list(meta["history"])
         self.solver.next_id = int(meta.get("next_id", self.solver.next_id))
         self.solver.reset_step_count(self.steps)
+        self.solver.adopt(self._state)
         self._last_good = self._state.numpy()

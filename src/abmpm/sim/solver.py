@@ -144,6 +144,13 @@ class MPMSolver:
                     s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody, self._cmask_for(s)],
         )
 
+    def adopt(self, state: ParticleState) -> None:
+        """Make the grids ready for a state that was replaced wholesale (loaded from a
+        checkpoint, edited, merged): fine blocks for its level-1 particles, colours."""
+        if self.refiner is not None:
+            self._after_activation(self.refiner.activate(state))
+        self.colour_particles(state)
+
     def reset_step_count(self, steps: int) -> None:
         """Steps taken so far (refinement runs every REFINE_EVERY steps), for resuming."""
         self._steps = steps

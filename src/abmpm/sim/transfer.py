@@ -258,12 +258,13 @@ def _make_g2p(cpic: bool, sparse: bool):
                 for k in range(3):
                     dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                     weight = w[i, 0] * w[j, 1] * w[k, 2]
-                    n = int(0)
+                    vi = wp.vec3(0.0)
                     if wp.static(sparse):
                         n = stencil_node(g, slots, base, i, j, k)
+                        if n >= 0:  # a level-1 particle's blocks are active; never read outside
+                            vi = grid_v[n]
                     else:
-                        n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
-                    vi = grid_v[n]
+                        vi = grid_v[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
                     new_v += weight * vi  # Eq. 5 / 11
                     B += weight * wp.outer(vi, dpos)
         if wp.static(cpic):
