@@ -16,7 +16,6 @@ from abmpm.sim.solver import MPMSolver, SolverConfig
 from abmpm.sim.state import ParticleState
 from abmpm.simulation import init_warp
 
-
 # --------------------------------------------------------------------------- split
 
 

@@ -7,7 +7,12 @@ import warp as wp
 
 import abmpm
 from abmpm.scene import model as sm
-from abmpm.sim.materials import MaterialParams, material_params, update_deformation, kirchhoff_stress
+from abmpm.sim.materials import (
+    MaterialParams,
+    kirchhoff_stress,
+    material_params,
+    update_deformation,
+)
 from abmpm.simulation import init_warp
 
 

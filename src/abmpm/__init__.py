@@ -1,6 +1,7 @@
 """abmpm: Adaptive Boundary Material Point Method on NVIDIA Warp."""
 
 from .errors import AbmpmError, MeshError, OutputError, SceneError, SimulationBlowUp
+from .scene.loader import list_builtin_scenes, load_scene
 from .scene.model import (
     BoxBody,
     BunnyBody,
@@ -17,7 +18,6 @@ from .scene.model import (
     Viscoelastic,
     Walls,
 )
-from .scene.loader import list_builtin_scenes, load_scene
 from .simulation import Particles, Simulation
 
 __version__ = "0.1.0"

@@ -32,8 +32,18 @@ from typing import Any
 import numpy as np
 
 from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
-from abmpm.io.checkpoint import checkpoint_name, latest_checkpoint, load_checkpoint, save_checkpoint
-from abmpm.io.ply import read_mesh_ply, read_particles_ply, write_mesh_ply, write_particles_ply
+from abmpm.io.checkpoint import (
+    checkpoint_name,
+    latest_checkpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
+from abmpm.io.ply import (
+    read_mesh_ply,
+    read_particles_ply,
+    write_mesh_ply,
+    write_particles_ply,
+)
 from abmpm.io.summary import write_json
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene

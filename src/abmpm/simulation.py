@@ -15,17 +15,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
-
-from .errors import AbmpmError, SimulationBlowUp
-from .geometry.sampling import particle_volume, sample_body
-from .scene.model import FACES, Scene
-from .geometry.placement import collider_mesh
 from scipy.ndimage import binary_dilation
 
+from .errors import AbmpmError, SimulationBlowUp
+from .geometry.placement import collider_mesh
+from .geometry.sampling import particle_volume, sample_body
+from .scene.model import FACES, Scene
 from .sim.colliders import ColliderSet
-from .sim.refine import merge_families
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import material_params, wave_speed
+from .sim.refine import merge_families
 from .sim.solver import MPMSolver, SolverConfig
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
@@ -319,7 +318,7 @@ class Simulation:
         return c.triangles(self.time if time is None else time)
 
     def collider_faces(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(vertices at the current time, faces, body index per face) of all colliders."""
+        """(vertices at the current time, faces) of all colliders, or None."""
         c = self.solver.colliders
         if c is None:
             return None

@@ -67,7 +67,13 @@ def slit_scene(dx: float = 0.03, factor: int = 3):
 
 def jelly_scene(dx: float = 1 / 30, factor: int = 3):
     """A jelly ball dropped onto crossed thin blades (after the paper's jelly / bunny-split)."""
-    from ..scene.model import CrossedPlatesCollider, Elastic, Scene, SimulationSettings, SphereBody
+    from ..scene.model import (
+        CrossedPlatesCollider,
+        Elastic,
+        Scene,
+        SimulationSettings,
+        SphereBody,
+    )
 
     return Scene(
         name="bench_jelly",

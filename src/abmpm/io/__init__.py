@@ -5,7 +5,12 @@ These modules know nothing of the solver; they take numpy arrays and dicts.
 
 from abmpm.io.atomic import atomic_write
 from abmpm.io.checkpoint import latest_checkpoint, load_checkpoint, save_checkpoint
-from abmpm.io.ply import read_mesh_ply, read_particles_ply, write_mesh_ply, write_particles_ply
+from abmpm.io.ply import (
+    read_mesh_ply,
+    read_particles_ply,
+    write_mesh_ply,
+    write_particles_ply,
+)
 from abmpm.io.summary import to_builtin, write_json
 from abmpm.io.usd import UsdPointsWriter
 

@@ -187,12 +187,6 @@ class Grid:
             v=wp.zeros(n, dtype=wp.vec3, device=device),
         )
 
-    def node_positions(self) -> np.ndarray:
-        """(nx, ny, nz, 3) world positions of the nodes of a dense grid (host)."""
-        o = np.array([self.spec.origin[i] for i in range(3)], dtype=np.float64)
-        idx = np.stack(np.meshgrid(*[np.arange(n) for n in self.dims], indexing="ij"), axis=-1)
-        return o + idx * self.dx
-
     def grow(self, slots: int) -> bool:
         """Make room for ``slots`` active blocks (sparse); True if storage moved."""
         self.active_slots = slots

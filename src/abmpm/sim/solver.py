@@ -24,7 +24,13 @@ import warp as wp
 
 from ..scene.model import FACES
 from . import transfer
-from .colliders import ColliderSet, colour_field, colour_particles, empty_spec, grow_colour_field
+from .colliders import (
+    ColliderSet,
+    colour_field,
+    colour_particles,
+    empty_spec,
+    grow_colour_field,
+)
 from .grid import Grid
 from .materials import MaterialParams
 from .refine import REFINE_EVERY, Refiner

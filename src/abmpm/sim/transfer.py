@@ -16,12 +16,36 @@ wp.set_module_options({"enable_backward": False})
 
 from .boundary import boundary_response
 from .colliders import (
-    PARTICLE_BAND, rigid_velocity, ALL_NODES, CollisionSpec, Colour, ColourField, boundary_velocity, colour_point, compatibility_mask,
-    near_surface, node_bit, node_contact, stop_crossing,
+    ALL_NODES,
+    PARTICLE_BAND,
+    CollisionSpec,
+    Colour,
+    ColourField,
+    boundary_velocity,
+    colour_point,
+    compatibility_mask,
+    near_surface,
+    node_bit,
+    node_contact,
+    rigid_velocity,
+    stop_crossing,
 )
-from .grid import GridSpec, node_coords, node_index, node_position, stencil_node, stencil_slots, vec8i
+from .grid import (
+    GridSpec,
+    node_coords,
+    node_index,
+    node_position,
+    stencil_node,
+    stencil_slots,
+    vec8i,
+)
 from .materials import (
-    MODEL_FLUID, MaterialParams, fluid_stress, fluid_volume_update, solid_stress, update_deformation,
+    MODEL_FLUID,
+    MaterialParams,
+    fluid_stress,
+    fluid_volume_update,
+    solid_stress,
+    update_deformation,
 )
 
 
