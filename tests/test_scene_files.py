@@ -20,9 +20,10 @@ from abmpm.scene.model import Scene
 from abmpm.simulation import Simulation, sample_scene
 
 BUILTINS = [
-    "blade_cut", "dam_break", "funnel", "jelly_drop", "letter_panel", "mixed", "plate_pour", "sand_pile",
+    "blade_cut", "dam_break", "funnel", "hourglass", "jelly_drop", "letter_panel", "mixed", "plate_pour",
+    "sand_pile",
 ]
-COLLIDER_BUILTINS = ["blade_cut", "funnel", "letter_panel", "plate_pour"]
+COLLIDER_BUILTINS = ["blade_cut", "funnel", "hourglass", "letter_panel", "plate_pour"]
 
 # A valid, tiny scene (a few hundred particles) that the bad cases start from.
 GOOD = """\
