@@ -251,3 +251,26 @@ def test_adaptive_resume_is_bit_identical():
     a, b = straight.particles().by_id(), resumed.particles().by_id()
     assert a.level.max() == 1 and len(a) == len(b)
     assert np.array_equal(a.x, b.x) and np.array_equal(a.v, b.v)
+
+
+def test_region_follows_a_moving_collider():
+    sheet = sm.SheetCollider(size=(0.3, 0.3), center=(0.3, 0.5, 0.5), motion=sm.Motion(velocity=(1.0, 0, 0)))
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(dx=0.05, fps=10, gravity=(0, 0, 0), refinement={"mode": "adaptive"}),
+        materials=[abmpm.Elastic(name="jelly")],
+        bodies=[abmpm.SphereBody(material="jelly", center=(0.5, 0.15, 0.5), radius=0.08)],
+        colliders=[sheet],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    g = sim.solver.grid
+    origin = np.array([g.spec.origin[a] for a in range(3)])
+
+    def refined_x():  # x extent of the refined cells
+        idx = np.argwhere(sim.solver.refiner.region_cells)
+        return origin[0] + g.dx * idx[:, 0].min(), origin[0] + g.dx * (idx[:, 0].max() + 1)
+
+    lo0, hi0 = refined_x()
+    sim.advance(frames=3)  # the sheet moves 0.3 m in +x
+    lo1, hi1 = refined_x()
+    # the region (sheet +- halo) moved with the sheet, to within a cell
+    assert abs((lo1 - lo0) - 0.3) <= g.dx + 1e-9 and abs((hi1 - hi0) - 0.3) <= g.dx + 1e-9

@@ -268,6 +268,8 @@ class Simulation:
         self._last_good = snap
         self.history.append(diag)
         self._choose_dt(diag["max_speed"])
+        if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
+            self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:
             self._merge(snap)
         if self.frame % SORT_EVERY_FRAMES == 0:
