@@ -25,6 +25,7 @@ from .sim.colliders import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import material_params, wave_speed
 from .sim.refine import merge_families
+from .sim.region import RegionParams, refinement_region
 from .sim.solver import MPMSolver, SolverConfig
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
@@ -192,7 +193,6 @@ class Simulation:
     def refinement_cells(self) -> np.ndarray:
         """Refined coarse cells B_s now: boundary density of the colliders marked for
         refinement (Eqs. 26-27) plus the scene's boxes."""
-        from .sim.region import RegionParams, refinement_region
         r = self.scene.simulation.refinement
         g = self.solver.grid
         origin = np.array([g.spec.origin[a] for a in range(3)], dtype=np.float64)
