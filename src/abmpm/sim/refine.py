@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from .grid import BLOCK, Grid, GridSpec
-from .state import ParticleState
+from .state import ParticleArrays, ParticleState
 from .transfer import stencil_base
 
 wp.set_module_options({"enable_backward": False})
@@ -40,25 +40,21 @@ def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0:
 @wp.kernel
 def split_particles(
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
-    x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
-    F: wp.array(dtype=wp.mat33), plastic: wp.array(dtype=float), cp: wp.array(dtype=wp.vec3),
-    cn: wp.array(dtype=wp.vec3), cbody: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
-    volume: wp.array(dtype=float), material: wp.array(dtype=wp.int32), level: wp.array(dtype=wp.int32),
-    pid: wp.array(dtype=wp.int32), family: wp.array(dtype=wp.int32),
+    s: ParticleArrays,
 ):
     p = wp.tid()
     if flag[p] == 0:
         return
     # read the parent before child 0 overwrites it
-    xp = x[p]
-    vp = v[p]
-    Cp = C[p]
-    Fp = F[p]
+    xp = s.x[p]
+    vp = s.v[p]
+    Cp = s.C[p]
+    Fp = s.F[p]
     ns = b * b * b
-    h = wp.pow(volume[p], 1.0 / 3.0)  # side of the parent's lattice cube
-    mc = mass[p] / float(ns)
-    Vc = volume[p] / float(ns)
-    parent = pid[p]
+    h = wp.pow(s.volume[p], 1.0 / 3.0)  # side of the parent's lattice cube
+    mc = s.mass[p] / float(ns)
+    Vc = s.volume[p] / float(ns)
+    parent = s.id[p]
     first = n_old + offset[p] * (ns - 1)
     for c in range(ns):
         q = p
@@ -66,20 +62,20 @@ def split_particles(
             q = first + c - 1
         d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
         xc = xp + Fp * (h * d)
-        x[q] = xc
-        v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
-        C[q] = Cp
-        F[q] = Fp
-        plastic[q] = plastic[p]
-        cp[q] = cp[p]
-        cn[q] = cn[p]
-        cbody[q] = cbody[p]
-        mass[q] = mc
-        volume[q] = Vc
-        material[q] = material[p]
-        level[q] = 1
-        pid[q] = next_id + offset[p] * ns + c
-        family[q] = parent
+        s.x[q] = xc
+        s.v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
+        s.C[q] = Cp
+        s.F[q] = Fp
+        s.plastic[q] = s.plastic[p]
+        s.cp[q] = s.cp[p]
+        s.cn[q] = s.cn[p]
+        s.cbody[q] = s.cbody[p]
+        s.mass[q] = mc
+        s.volume[q] = Vc
+        s.material[q] = s.material[p]
+        s.level[q] = 1
+        s.id[q] = next_id + offset[p] * ns + c
+        s.family[q] = parent
 
 
 # Refinement runs every REFINE_EVERY steps. In that time a particle moves less than
@@ -176,11 +172,8 @@ class Refiner:
             return 0
         ns = self.b**3
         state.reserve(n + n_split * (ns - 1))
-        s = state
-        wp.launch(split_particles, dim=n, device=self.device, inputs=[
-            self._flag, self._offset, n, self.b, next_id,
-            s.x, s.v, s.C, s.F, s.plastic, s.cp, s.cn, s.cbody, s.mass, s.volume, s.material, s.level, s.id,
-            s.family])
+        wp.launch(split_particles, dim=n, device=self.device,
+                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays()])
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split

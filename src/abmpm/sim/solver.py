@@ -116,8 +116,7 @@ class MPMSolver:
             self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         wp.launch(
             transfer.P2G[self.cpic, g.sparse, only_level >= 0], dim=s.count, device=self.device,
-            inputs=[s.x, s.v, s.C, s.F, s.plastic, s.mass, s.volume, s.material, s.level, s.cp, s.cn, s.cbody,
-                    self._cmask_for(s), self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
+            inputs=[s.arrays(), self._cmask_for(s), self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
                     self._occupied(g), g.mv, g.m],
         )
 
@@ -147,7 +146,7 @@ class MPMSolver:
         wp.launch(
             transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
-                    s.x, s.v, s.C, s.F, s.plastic, s.material, s.level, s.cp, s.cn, s.cbody, self._cmask_for(s)],
+                    s.arrays(), self._cmask_for(s)],
         )
 
     def adopt(self, state: ParticleState) -> None:

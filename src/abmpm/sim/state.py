@@ -33,6 +33,26 @@ DTYPES = {
 }
 
 
+@wp.struct
+class ParticleArrays:
+    """The particle arrays as one kernel argument (``s.x[p]``, ``s.F[p]``, ...)."""
+
+    x: wp.array(dtype=wp.vec3)
+    v: wp.array(dtype=wp.vec3)
+    C: wp.array(dtype=wp.mat33)
+    F: wp.array(dtype=wp.mat33)
+    plastic: wp.array(dtype=float)
+    cp: wp.array(dtype=wp.vec3)
+    cn: wp.array(dtype=wp.vec3)
+    cbody: wp.array(dtype=wp.int32)
+    mass: wp.array(dtype=float)
+    volume: wp.array(dtype=float)
+    material: wp.array(dtype=wp.int32)
+    level: wp.array(dtype=wp.int32)
+    id: wp.array(dtype=wp.int32)
+    family: wp.array(dtype=wp.int32)
+
+
 @dataclass
 class ParticleState:
     x: wp.array  # position, m
@@ -52,6 +72,16 @@ class ParticleState:
     id: wp.array  # stable particle identifier (order changes when particles are sorted)
     family: wp.array  # id of the parent a subdivided particle was split from, else -1
     count: int = 0  # particles in use; the arrays may hold more (capacity)
+
+    def arrays(self) -> ParticleArrays:
+        """The arrays as a Warp struct for kernels (rebuilt after the arrays move)."""
+        a = self.__dict__.get("_arrays")
+        if a is None or a.x.ptr != self.x.ptr or a.x.shape != self.x.shape:
+            a = ParticleArrays()
+            for name in FIELDS:
+                setattr(a, name, getattr(self, name))
+            self.__dict__["_arrays"] = a
+        return a
 
     @property
     def capacity(self) -> int:

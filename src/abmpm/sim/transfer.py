@@ -47,6 +47,7 @@ from .materials import (
     solid_stress,
     update_deformation,
 )
+from .state import ParticleArrays
 
 
 @wp.func
@@ -74,18 +75,7 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
 def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
     @wp.kernel
     def p2g(
-        x: wp.array(dtype=wp.vec3),
-        v: wp.array(dtype=wp.vec3),
-        C: wp.array(dtype=wp.mat33),
-        F: wp.array(dtype=wp.mat33),
-        plastic: wp.array(dtype=float),
-        mass: wp.array(dtype=float),
-        volume: wp.array(dtype=float),
-        material: wp.array(dtype=wp.int32),
-        level: wp.array(dtype=wp.int32),
-        cp: wp.array(dtype=wp.vec3),
-        cn: wp.array(dtype=wp.vec3),
-        cbody: wp.array(dtype=wp.int32),
+        s: ParticleArrays,
         cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
@@ -111,26 +101,26 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         # nobody gathers from the coarse grid.
         p = wp.tid()
         if wp.static(overlap_pass):
-            if level[p] != only_level:
+            if s.level[p] != only_level:
                 return
-        xp = x[p]
+        xp = s.x[p]
         base = stencil_base(g, xp)
         if wp.static(sparse):
             if not stencil_touches_active(g, base):
                 return
         fx = stencil_offset(g, xp, base)
         w = bspline_weights(fx)
-        m = mass[p]
-        Cp = C[p]
+        m = s.mass[p]
+        Cp = s.C[p]
         tau = wp.mat33()
         if wp.static(sparse):
             tau = tau_store[p]
         else:
-            mat = materials[material[p]]
+            mat = materials[s.material[p]]
             if mat.model == MODEL_FLUID:
-                tau = fluid_stress(mat, plastic[p], Cp)  # no F traffic for fluids
+                tau = fluid_stress(mat, s.plastic[p], Cp)  # no F traffic for fluids
             else:
-                tau = solid_stress(mat, F[p], Cp, plastic[p])
+                tau = solid_stress(mat, s.F[p], Cp, s.plastic[p])
             if store != 0:
                 tau_store[p] = tau
         if wp.static(overlap_pass):
@@ -139,14 +129,14 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
                     return
         # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
         # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
-        affine = (-dt * volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp
-        mv = m * v[p]
+        affine = (-dt * s.volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + m * Cp
+        mv = m * s.v[p]
         mask = ALL_NODES
         if wp.static(cpic):
             # CPIC: scatter only to nodes on the particle's side of every collider
-            if cbody[p] >= 0:
-                mask = compatibility_mask(cp[p], cn[p], cbody[p], xp, colour, g, base, fx)
-                if level[p] == g.level:
+            if s.cbody[p] >= 0:
+                mask = compatibility_mask(s.cp[p], s.cn[p], s.cbody[p], xp, colour, g, base, fx)
+                if s.level[p] == g.level:
                     cmask[p] = mask  # G2P from this grid reuses it
         slots = vec8i()
         if wp.static(sparse):
@@ -252,23 +242,14 @@ def _make_g2p(cpic: bool, sparse: bool):
         dt: float,
         grid_v: wp.array(dtype=wp.vec3),
         # particle state, updated in place (each thread touches only its own particle)
-        x: wp.array(dtype=wp.vec3),
-        v: wp.array(dtype=wp.vec3),
-        C: wp.array(dtype=wp.mat33),
-        F: wp.array(dtype=wp.mat33),
-        plastic: wp.array(dtype=float),
-        material: wp.array(dtype=wp.int32),
-        level: wp.array(dtype=wp.int32),
-        cp: wp.array(dtype=wp.vec3),
-        cn: wp.array(dtype=wp.vec3),
-        cbody: wp.array(dtype=wp.int32),
+        s: ParticleArrays,
         cmask: wp.array(dtype=wp.int32),
     ):
         # Eqs. 11-12: a particle gathers from its own level's grid only
         p = wp.tid()
-        if level[p] != g.level:
+        if s.level[p] != g.level:
             return
-        xp = x[p]
+        xp = s.x[p]
         base = stencil_base(g, xp)
         fx = stencil_offset(g, xp, base)
         w = bspline_weights(fx)
@@ -292,14 +273,14 @@ def _make_g2p(cpic: bool, sparse: bool):
                     new_v += weight * vi  # Eq. 5 / 11
                     B += weight * wp.outer(vi, dpos)
         if wp.static(cpic):
-            cb = cbody[p]
+            cb = s.cbody[p]
             if cb >= 0:
                 # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
                 mask = cmask[p]  # from this step's P2G
                 if mask != ALL_NODES:
                     # the particle's velocity advanced by gravity like the grid's, then
                     # projected by the collider's boundary type
-                    v_bar = boundary_velocity(spec, cb, cn[p], xp, v[p] + dt * g.gravity)
+                    v_bar = boundary_velocity(spec, cb, s.cn[p], xp, s.v[p] + dt * g.gravity)
                     for i in range(3):
                         for j in range(3):
                             for k in range(3):
@@ -312,26 +293,26 @@ def _make_g2p(cpic: bool, sparse: bool):
         # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
         new_C = (4.0 * g.inv_dx * g.inv_dx) * B
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
-        mat = materials[material[p]]
+        mat = materials[s.material[p]]
         if mat.model == MODEL_FLUID:
-            plastic[p] = fluid_volume_update(plastic[p], new_C, dt)
+            s.plastic[p] = fluid_volume_update(s.plastic[p], new_C, dt)
         else:
-            d = update_deformation(mat, F[p], new_C, plastic[p], dt)
-            F[p] = d.F
-            plastic[p] = d.plastic
+            d = update_deformation(mat, s.F[p], new_C, s.plastic[p], dt)
+            s.F[p] = d.F
+            s.plastic[p] = d.plastic
         xn = xp + dt * new_v
         if wp.static(cpic):
             # no crossing: stop at the surface on the particle's own side
             # A particle farther from every surface than it moves (relative to the
             # collider) cannot cross one: only the others cast the ray. Particles
             # outside the band last step are farther than a step, hence never cast.
-            cb = cbody[p]
+            cb = s.cbody[p]
             reach = PARTICLE_BAND * g.dx
             if cb >= 0:
                 move = wp.length(xn - xp) + dt * wp.length(rigid_velocity(spec.bodies[cb], xp))
-                reach = wp.length(xp - cp[p]) + move + 0.01 * g.dx
-                if move >= wp.length(xp - cp[p]) - 0.01 * g.dx:
-                    hit = stop_crossing(spec, g, xp, xn, dt, cb, cn[p])
+                reach = wp.length(xp - s.cp[p]) + move + 0.01 * g.dx
+                if move >= wp.length(xp - s.cp[p]) - 0.01 * g.dx:
+                    hit = stop_crossing(spec, g, xp, xn, dt, cb, s.cn[p])
                     if hit.hit != 0:
                         xn = hit.x
                         new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
@@ -343,18 +324,18 @@ def _make_g2p(cpic: bool, sparse: bool):
                 c = colour_point(spec, g, xn, reach)
                 if c.body < 0 and reach < PARTICLE_BAND * g.dx:
                     c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx)
-            cp[p] = c.cp
-            cn[p] = c.cn
-            cbody[p] = c.body
+            s.cp[p] = c.cp
+            s.cn[p] = c.cn
+            s.cbody[p] = c.body
         # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
         # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
         # a safety net that keeps stencils inside the grid. (Clamping at the plane
         # itself would pile particles up there and silently compress material.)
         for a in range(3):
             xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
-        x[p] = xn
-        v[p] = new_v
-        C[p] = new_C
+        s.x[p] = xn
+        s.v[p] = new_v
+        s.C[p] = new_C
 
     return g2p
 
