@@ -274,3 +274,29 @@ def test_region_follows_a_moving_collider():
     lo1, hi1 = refined_x()
     # the region (sheet +- halo) moved with the sheet, to within a cell
     assert abs((lo1 - lo0) - 0.3) <= g.dx + 1e-9 and abs((hi1 - hi0) - 0.3) <= g.dx + 1e-9
+
+
+def test_split_children_keep_the_parent_envelope():
+    """Children sit on the sub-lattice of their parent's own cube (deformed by F), so
+    splitting a block neither swells it nor roughens its faces beyond the parents'
+    sampling jitter: the bumps that Eqs. 16-20 of the paper repair do not arise."""
+    lo, hi = np.array([0.3, 0.3, 0.3]), np.array([0.5, 0.5, 0.5])
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            dx=0.05, fps=20, gravity=(0, 0, 0), refinement={"mode": "adaptive", "boxes": [((0, 0, 0), (1, 1, 1))]}),
+        materials=[abmpm.Elastic(name="jelly")],
+        bodies=[abmpm.BoxBody(material="jelly", min=tuple(lo), max=tuple(hi))],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    p = sim.particles()
+    assert np.all(p.level == 1)
+    h_parent, h_child = 0.05 / 2, 0.05 / 4
+    # parents sit at cell-lattice points jittered by up to h/4; a child is within
+    # h_parent/2 - h_child/2 of its parent, so every child is inside the block grown
+    # by the jitter, and the outermost children reach within h_child/2 + jitter of the faces
+    jitter = h_parent / 4
+    assert np.all(p.x >= lo + h_child / 2 - jitter - 1e-6) and np.all(p.x <= hi - h_child / 2 + jitter + 1e-6)
+    assert np.allclose(p.x.min(axis=0), lo + h_child / 2, atol=jitter + 1e-6)
+    assert np.allclose(p.x.max(axis=0), hi - h_child / 2, atol=jitter + 1e-6)
+    # volume is conserved: children's volumes add up to the block's
+    assert np.isclose(p.volume.astype(np.float64).sum(), np.prod(hi - lo), rtol=1e-6)
