@@ -300,3 +300,23 @@ def test_split_children_keep_the_parent_envelope():
     assert np.allclose(p.x.max(axis=0), hi - h_child / 2, atol=jitter + 1e-6)
     # volume is conserved: children's volumes add up to the block's
     assert np.isclose(p.volume.astype(np.float64).sum(), np.prod(hi - lo), rtol=1e-6)
+
+
+def test_region_outline_and_region_file(tmp_path):
+    from abmpm.post.render import region_outline
+    from abmpm.runner import run
+
+    one = np.zeros((4, 4, 4), dtype=bool)
+    one[1, 1, 1] = True
+    assert len(region_outline(one, (0, 0, 0), 1.0)) == 12  # a cube's 12 edges
+    slab = np.zeros((6, 6, 6), dtype=bool)
+    slab[1:5, 2:3, 1:5] = True
+    seg = region_outline(slab, (0, 0, 0), 0.5)
+    assert len(seg) == 4 * 4 + 4 * 4 + 4 * 1  # a 4 x 1 x 4 box: 12 edges cut into unit segments
+    assert np.allclose(seg.reshape(-1, 3).min(axis=0), [0.5, 1.0, 0.5])
+    # an adaptive run writes its region for tools and the preview
+    scene = jelly_scene("adaptive", [((0, 0, 0), (1, 0.3, 1))])
+    run(scene, tmp_path / "out", frames=1, preview=False, progress=False)
+    with np.load(tmp_path / "out" / "region.npz") as z:
+        # one flag per coarse cell: 20 cells across the domain + 3 padding cells each side
+        assert z["cells"].any() and z["cells"].shape == (26, 26, 26)

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
+from abmpm.io.atomic import atomic_write
 from abmpm.io.checkpoint import (
     checkpoint_name,
     latest_checkpoint,
@@ -54,6 +55,8 @@ FRAMES_DIR = "frames"
 COLLIDERS_DIR = "colliders"
 CHECKPOINTS_DIR = "checkpoints"
 SCENE_FILE = "scene.json"
+REGION_FILE = "region.npz"  # adaptive mode: the refined coarse cells (cells, origin, dx)
+REGION_COLOR = (0.95, 0.55, 0.1)  # outline of the refined region in the preview
 SUMMARY_FILE = "summary.json"
 ENERGY_FILE = "energy.png"
 PREVIEW_FILE = "preview.mp4"
@@ -127,7 +130,7 @@ def _clean_previous_run(out: Path) -> None:
     victims = [p for _, p in _numbered(out / FRAMES_DIR, _FRAME_RE)]
     victims += [p for _, p in _numbered(out / COLLIDERS_DIR, _COLLIDER_RE)]
     victims += [p for _, p in _numbered(out / CHECKPOINTS_DIR, _CKPT_RE)]
-    victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE)]
+    victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE, REGION_FILE)]
     for p in victims:
         try:
             p.unlink(missing_ok=True)
@@ -298,6 +301,26 @@ def _internal_kinetic_energy(frame: dict) -> float:
     return ke if math.isfinite(ke) else -1.0
 
 
+def _write_region(out: Path, sim) -> None:
+    region = sim.refined_region()
+    if region is None:
+        return
+    with atomic_write(out / REGION_FILE) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, cells=region["cells"], origin=region["origin"], dx=np.float64(region["dx"]))
+
+
+def _region_lines(out: Path) -> list:
+    """The refined region's outline for the preview, from region.npz if there is one."""
+    from abmpm.post.render import region_outline
+
+    path = out / REGION_FILE
+    if not path.exists():
+        return []
+    with np.load(path, allow_pickle=False) as z:
+        return [(region_outline(z["cells"], z["origin"], float(z["dx"])), REGION_COLOR)]
+
+
 def _render_preview(
     out: Path, scene: Scene, source, fps: float, on_frame: Callable[[], None] | None = None
 ) -> dict:
@@ -313,13 +336,14 @@ def _render_preview(
     densities = _densities(scene)
     vmax = _speed_vmax(source) if scene.output.color_by == "speed" else None
     poster: dict[str, Any] = {"ke": -1.0, "image": None, "frame": None}
+    lines = _region_lines(out)
 
     def images() -> Iterator[np.ndarray]:
         for n, load in source:
             f = load()
             img = render(
                 f["x"], _colors(f, scene, vmax), camera, _radius(f, densities), box=box,
-                triangles=f.get("triangles"), edges=f.get("edges"),
+                triangles=f.get("triangles"), edges=f.get("edges"), lines=lines,
             )
             ke = _internal_kinetic_energy(f)
             # poster: the frame with the most motion relative to the centre of mass, so
@@ -510,6 +534,7 @@ def run(
     if resumed_from is None:
         _clean_previous_run(out)
     write_json(out / SCENE_FILE, scene.model_dump(mode="json"))
+    _write_region(out, sim)
 
     kept: list[tuple[int, dict]] = []  # host frames for the preview when no PLY is written
     # collider vertices of every output frame: on disk next to the particle frames,
@@ -625,6 +650,7 @@ def run(
                     (n, (lambda f=f: f)) for n, f in kept if n <= last
                 ]
                 source = colliders.attach(source)  # frames of this run: no need to read them back
+                _write_region(out, sim)  # as it is at the end (it follows moving colliders)
                 if preview and out_cfg.preview and source:
                     fps = scene.simulation.fps / out_cfg.frame_every
                     bar.start_render(len(source))

@@ -319,6 +319,16 @@ class Simulation:
             return np.zeros((0, 3, 3))
         return c.triangles(self.time if time is None else time)
 
+    def refined_region(self) -> dict | None:
+        """The refined coarse cells now (adaptive mode): ``cells`` (bool, one per coarse
+        cell), ``origin`` (corner of cell (0,0,0)) and ``dx``; None in other modes."""
+        r = self.solver.refiner
+        if r is None:
+            return None
+        g = self.solver.grid
+        return {"cells": r.region_cells.copy(), "origin": np.array([g.spec.origin[a] for a in range(3)]),
+                "dx": g.dx}
+
     def collider_faces(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(vertices at the current time, faces) of all colliders, or None."""
         c = self.solver.colliders

@@ -413,6 +413,7 @@ def render(
     triangle_alpha: float = 0.5,
     edge_color=(0.22, 0.24, 0.28),
     edge_alpha: float = 0.85,
+    lines: Sequence[tuple[np.ndarray, Sequence[float]]] = (),
 ) -> np.ndarray:
     """Render particles to an ``uint8 (H, W, 3)`` image.
 
@@ -463,8 +464,43 @@ def render(
             extent = max(extent, float(np.linalg.norm(np.subtract(box[1], box[0]))))
         bias = 2e-3 * extent if math.isfinite(extent) else 0.0  # lines on a surface win over it
         _draw_lines(camera, seg, rgb, depth, edge_color, bias=bias, alpha=edge_alpha, write_depth=False)
+    for segments, color in lines:  # e.g. the outline of the refined region
+        seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 3)
+        if len(seg):
+            _draw_lines(camera, seg, rgb, depth, color, bias=0.0, alpha=0.9, write_depth=False)
     img = np.clip(rgb.reshape(h, w, 3) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return img
+
+
+def region_outline(cells: np.ndarray, origin, dx: float) -> np.ndarray:
+    """(K, 2, 3) segments outlining a set of refined grid cells (bool array): the
+    edges where the region's boundary surface turns, so a slab reads as a box."""
+    cells = np.asarray(cells, dtype=bool)
+    if not cells.any():
+        return np.zeros((0, 2, 3))
+    padded = np.pad(cells, 1)
+    segs = []
+    # an edge of the cell lattice (along axis a) is on the outline when the 4 cells
+    # around it are neither all alike nor two half-planes (a flat face)
+    for a in range(3):
+        b, c = [k for k in range(3) if k != a]
+        m = np.moveaxis(padded, (a, b, c), (0, 1, 2)).astype(np.int8)
+        q00, q10, q01, q11 = m[:, :-1, :-1], m[:, 1:, :-1], m[:, :-1, 1:], m[:, 1:, 1:]
+        total = q00 + q10 + q01 + q11
+        flat = ((q00 == q10) & (q01 == q11)) | ((q00 == q01) & (q10 == q11))
+        on = (total > 0) & (total < 4) & ~flat
+        idx = np.argwhere(on)  # (i_a, j_b, k_c): edge from corner (i, j, k) to (i+1, j, k) in padded cells
+        if len(idx) == 0:
+            continue
+        start = np.zeros((len(idx), 3))
+        start[:, a] = idx[:, 0] - 1
+        start[:, b] = idx[:, 1]
+        start[:, c] = idx[:, 2]
+        end = start.copy()
+        end[:, a] += 1
+        segs.append(np.stack([start, end], axis=1))
+    seg = np.concatenate(segs) if segs else np.zeros((0, 2, 3))
+    return np.asarray(origin, dtype=np.float64) + seg * dx
 
 
 # ---------------------------------------------------------------------- colours
