@@ -226,24 +226,15 @@ class Simulation:
             raise ValueError("give exactly one of seconds= or frames=")
         if frames is not None:
             target = self.frame + int(frames)
-            while self.frame < target:
-                self._run_frame(callback)
-            return
-        t_end = self.time + float(seconds)
-        while self.time < t_end - 1e-9 * max(1.0, t_end):
+            done = lambda: self.frame >= target  # noqa: E731
+        else:
+            t_end = self.time + float(seconds)
+            done = lambda: self.time >= t_end - 1e-9 * max(1.0, t_end)  # noqa: E731
+        while not done():
             frame = self.frame
             self.step()
             if callback is not None and self.frame != frame:
                 callback(self)
-
-    def _run_frame(self, callback) -> None:
-        for _ in range(self.substeps - self.substep):
-            self.solver.step(self._state, self.dt, self.time)
-            self.steps += 1
-            self.substep += 1
-        self._end_frame()
-        if callback is not None:
-            callback(self)
 
     def _end_frame(self) -> None:
         snap = self._state.numpy()

@@ -169,11 +169,11 @@ def near_surface(f: ColourField, g: GridSpec, x: wp.vec3):
 
 @wp.func
 def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float):
-    # closest surface point within max_dist (at most the band): a tight bound prunes
+    # closest surface point within max_dist (-1 body if none): for particles a tight bound prunes
     # the BVH search, which is most of the cost of a particle near a collider
     c = Colour()
     c.body = -1
-    q = wp.mesh_query_point_no_sign(spec.mesh, x, wp.min(max_dist, PARTICLE_BAND * g.dx))
+    q = wp.mesh_query_point_no_sign(spec.mesh, x, max_dist)
     if q.result:
         c.cp = wp.mesh_eval_position(spec.mesh, q.face, q.u, q.v)
         d = x - c.cp
@@ -241,17 +241,11 @@ def colour_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32)
 @wp.func
 def colour_node(spec: CollisionSpec, g: GridSpec, f: ColourField, n: int, c: wp.vec3i):
     xi = node_position(g, c)
-    q = wp.mesh_query_point_no_sign(spec.mesh, xi, NODE_BAND * g.dx)
-    if q.result:
-        cpt = wp.mesh_eval_position(spec.mesh, q.face, q.u, q.v)
-        d = xi - cpt
-        dl = wp.length(d)
-        f.dist[n] = dl
-        if dl > ON_SURFACE * g.dx:
-            f.dir[n] = d / dl
-        else:
-            f.dir[n] = wp.mesh_eval_face_normal(spec.mesh, q.face)
-        f.body[n] = spec.face_body[q.face]
+    col = colour_point(spec, g, xi, NODE_BAND * g.dx)
+    if col.body >= 0:
+        f.dist[n] = wp.length(xi - col.cp)
+        f.dir[n] = col.cn
+        f.body[n] = col.body
     else:
         f.dist[n] = FAR
         f.dir[n] = wp.vec3(0.0)

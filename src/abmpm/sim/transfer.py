@@ -321,7 +321,7 @@ def _make_g2p(cpic: bool, sparse: bool):
             if near_surface(colour, g, xn):
                 # colour for the next step's transfers; the new closest point lies
                 # within the old distance plus the motion (triangle inequality)
-                c = colour_point(spec, g, xn, reach)
+                c = colour_point(spec, g, xn, wp.min(reach, PARTICLE_BAND * g.dx))
                 if c.body < 0 and reach < PARTICLE_BAND * g.dx:
                     c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx)
             s.cp[p] = c.cp
