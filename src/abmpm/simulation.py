@@ -30,6 +30,9 @@ from .sim.solver import MPMSolver, SolverConfig
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
+# A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the
+# fastest particle moves ~1000x the material's wave speed.
+MIN_DT_FRACTION = 1.0e-3
 
 _warp_ready = False
 
@@ -160,13 +163,17 @@ class Simulation:
         if self.mode == "adaptive":
             self.solver.set_region(self.refinement_cells(), self._state)
         self.frame = 0
-        self.substep = 0
         self.steps = 0
+        self._t_frame = 0.0  # time since the frame started
+        self._taken = 0  # substeps taken in this frame
         self.history: list[dict] = []
+        # a step shorter than this fraction of the step at rest means the run has blown up
+        self._min_dt = MIN_DT_FRACTION * self.cfl_dt(0.0)
         self._choose_dt(float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()))
         self.solver.sort_by_cell(self._state)
         self.solver.colour_particles(self._state)
         self._last_good = self._state.numpy()
+        self._last_good_speed = self._cfl_speed
         self.history.append(self._diagnostics(self._last_good))
 
     # ------------------------------------------------------------------ time stepping
@@ -174,13 +181,48 @@ class Simulation:
     def _load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         self._state = ParticleState.from_numpy(arrays, self.device)
 
-    def _choose_dt(self, max_speed: float) -> None:
-        """CFL on the grid spacing with the wave speed plus the fastest particle, capped
-        by max_dt, then shortened so that a whole number of substeps fills a frame."""
+    def cfl_dt(self, max_speed: float) -> float:
+        """CFL step on the finest active spacing for the wave speed plus the fastest
+        particle, capped by max_dt."""
         st = self.scene.simulation
-        dt = min(st.max_dt, st.cfl * self.finest_active_dx / (self.wave_speed + max_speed))
-        self.substeps = max(1, math.ceil(self.frame_dt / dt - 1e-9))
-        self.dt = self.frame_dt / self.substeps
+        return min(st.max_dt, st.cfl * self.finest_active_dx / (self.wave_speed + max_speed))
+
+    def _choose_dt(self, max_speed: float) -> None:
+        """At a frame start: the CFL step, shortened so that a whole number of equal
+        substeps fills the frame."""
+        self._cfl_speed = max_speed
+        self._split_rest(self.frame_dt, self.cfl_dt(max_speed))
+        self.substeps = self._left
+
+    def _split_rest(self, rest: float, dt_max: float) -> None:
+        # the rest of the frame in equal substeps no longer than dt_max
+        self._left = max(1, math.ceil(rest / dt_max - 1e-9))
+        self.dt = rest / self._left
+
+    def _follow_speed(self, max_speed: float) -> None:
+        """After every substep: the fastest particle of that step bounds the next one
+        (an impact can multiply speeds within a frame). The rest of the frame is
+        re-split only when the current step has become too long, so a frame with
+        steady speeds keeps equal substeps."""
+        if not math.isfinite(max_speed) or max_speed >= 1.0e29:
+            self._blow_up("a particle velocity became NaN/inf")
+        self._cfl_speed = max_speed
+        dt_max = self.cfl_dt(max_speed)
+        if dt_max < self._min_dt:
+            self._blow_up(
+                f"max speed {max_speed:.3g} m/s needs a time step below {self._min_dt:.3g} s "
+                f"({MIN_DT_FRACTION:g} of the step at rest). Lower the impact speed, the "
+                f"collider separation or the stiffness, or refine less"
+            )
+        if self.dt > dt_max * (1.0 + 1e-6):
+            self._split_rest(self.frame_dt - self._t_frame, dt_max)
+            self.substeps = self._taken + self._left
+
+    def _blow_up(self, why: str) -> None:
+        raise SimulationBlowUp(
+            f"simulation blew up at step {self.steps} (t = {self.time:.4f} s): {why}; "
+            f"last good frame is {self.history[-1]['frame']}"
+        )
 
     @property
     def finest_active_dx(self) -> float:
@@ -205,19 +247,31 @@ class Simulation:
 
     @property
     def time(self) -> float:
-        return self.frame * self.frame_dt + self.substep * self.dt
+        return self.frame * self.frame_dt + self._t_frame
+
+    @property
+    def substep(self) -> int:
+        """Substeps taken in the current frame."""
+        return self._taken
 
     @property
     def particle_count(self) -> int:
         return self._state.count
 
     def step(self) -> None:
-        """One substep of length ``self.dt``; frame bookkeeping when a frame completes."""
+        """One substep of length ``self.dt``; its fastest particle sets the next
+        substep's length (CFL); frame bookkeeping when a frame completes."""
         self.solver.step(self._state, self.dt, self.time)
         self.steps += 1
-        self.substep += 1
-        if self.substep == self.substeps:
+        self._taken += 1
+        self._left -= 1
+        if self._left == 0:
+            self._t_frame = 0.0
+            self._taken = 0
             self._end_frame()
+        else:
+            self._t_frame += self.dt
+            self._follow_speed(self.solver.last_max_speed())
 
     def advance(self, seconds: float | None = None, frames: int | None = None, callback=None) -> None:
         """Run whole frames, or a duration in seconds (stopping at the first substep
@@ -239,7 +293,6 @@ class Simulation:
     def _end_frame(self) -> None:
         snap = self._state.numpy()
         self.frame += 1
-        self.substep = 0
         bad = first_non_finite(snap)
         if bad is not None:
             self.frame -= 1
@@ -247,18 +300,15 @@ class Simulation:
                 f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
-        diag = self._diagnostics(snap)
-        if diag["max_speed"] * self.dt > self.finest_active_dx:
+        speed = self.solver.last_max_speed()
+        if not math.isfinite(speed) or speed >= 1.0e29:
             self.frame -= 1
-            raise SimulationBlowUp(
-                f"simulation blew up at step {self.steps} (t = {self.time + self.frame_dt:.4f} s): "
-                f"max speed {diag['max_speed']:.3g} m/s moves a particle more than one cell per step "
-                f"(dx = {self.finest_active_dx}, dt = {self.dt:.3g}); last good frame is {self.frame}. "
-                f"Lower cfl / max_dt or stiffness."
-            )
+            self._blow_up("a particle velocity became NaN/inf")
+        diag = self._diagnostics(snap)
         self._last_good = snap
         self.history.append(diag)
-        self._choose_dt(diag["max_speed"])
+        self._choose_dt(speed)
+        self._last_good_speed = speed
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
             self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:
@@ -360,6 +410,8 @@ class Simulation:
             "steps": self.history[-1]["steps"] if last_good else self.steps,
             "dt": self.dt,
             "substeps": self.substeps,
+            # the fastest particle at that frame: it sets the next frame's time step
+            "cfl_speed": self._last_good_speed if last_good else self._cfl_speed,
             "history": [h for h in self.history if h["frame"] <= frame],
             "scene": self.scene.name,
             "mode": self.mode,
@@ -374,10 +426,15 @@ class Simulation:
         self._load_arrays({k: arrays[k] for k in DYNAMIC + STATIC})
         self.frame = int(meta["frame"])
         self.steps = int(meta["steps"])
-        self.substep = 0
-        self.dt = float(meta["dt"])
-        self.substeps = int(meta["substeps"])
+        self._t_frame = 0.0
+        self._taken = 0
         self.history = list(meta["history"])
+        if "cfl_speed" in meta:
+            self._choose_dt(float(meta["cfl_speed"]))
+        else:  # checkpoints written before the per-substep CFL
+            self.dt, self.substeps = float(meta["dt"]), int(meta["substeps"])
+            self._left, self._cfl_speed = self.substeps, 0.0
+        self._last_good_speed = self._cfl_speed
         self.solver.next_id = int(meta.get("next_id", self.solver.next_id))
         self.solver.reset_step_count(self.steps)
         self.solver.adopt(self._state)

@@ -55,6 +55,8 @@ ON_NODE = 1.0e-2
 # along its colour direction, so the ray never starts on the surface itself (a ray
 # from a point on a triangle may miss it, and a hit at t = 0 would freeze it there)
 RAY_BACKOFF = 2.0e-2
+# cells: a particle stopped before a surface stays this far from it (normal distance)
+STOP_GAP = 5.0 * ON_SURFACE
 
 
 @wp.struct
@@ -158,19 +160,36 @@ class Colour:
 
 
 @wp.func
+def nearest_node(g: GridSpec, x: wp.vec3):
+    """Storage index of the node nearest to x, clamped into the grid (any x, even NaN,
+    gives an index inside the storage; -1 for an inactive node of a sparse grid)."""
+    X = (x - g.origin) * g.inv_dx
+    i = wp.clamp(int(X[0] + 0.5), 0, g.dims[0] - 1)
+    j = wp.clamp(int(X[1] + 0.5), 0, g.dims[1] - 1)
+    k = wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1)
+    return node_index(g, i, j, k)
+
+
+@wp.func
 def near_surface(f: ColourField, g: GridSpec, x: wp.vec3):
     # cheap filter: the particle's nearest node carries a colour
-    X = (x - g.origin) * g.inv_dx
-    n = node_index(g, int(X[0] + 0.5), int(X[1] + 0.5), int(X[2] + 0.5))
+    n = nearest_node(g, x)
     if n < 0:
         return False
     return f.body[n] >= 0
 
 
 @wp.func
-def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float):
-    # closest surface point within max_dist (-1 body if none): for particles a tight bound prunes
-    # the BVH search, which is most of the cost of a particle near a collider
+def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float, side: wp.vec3):
+    """Closest surface point within max_dist (-1 body if none) and the unit direction
+    from it to x. For particles a tight bound prunes the BVH search, which is most of
+    the cost of a particle near a collider.
+
+    On the surface itself (closer than ON_SURFACE cells) the direction is float32 noise
+    and the face normal stands in. On an open sheet, or a mesh wound inwards, that
+    normal may point to either side, so it is turned to agree with ``side``: the
+    direction the point had before (its remembered colour, Eq. 21), or minus its motion.
+    A zero ``side`` (a node) keeps the face normal as it is."""
     c = Colour()
     c.body = -1
     q = wp.mesh_query_point_no_sign(spec.mesh, x, max_dist)
@@ -182,6 +201,8 @@ def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float):
             c.cn = d / dl
         else:
             c.cn = wp.mesh_eval_face_normal(spec.mesh, q.face)
+            if wp.dot(c.cn, side) < 0.0:
+                c.cn = -c.cn
         c.body = spec.face_body[q.face]
     return c
 
@@ -211,13 +232,22 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
     if L < 1.0e-9 * g.dx:
         return out
     dirn = seg / L
-    q = wp.mesh_query_ray(spec.mesh, start, dirn, L)
+    # The ray reaches STOP_GAP cells past the end point: a step that ends within
+    # round-off past a surface (or just short of it) is stopped like any other, so
+    # the float32 intersection test can never let an end point slip through.
+    q = wp.mesh_query_ray(spec.mesh, start, dirn, L + STOP_GAP * g.dx)
     if q.result:
         out.hit = 1
-        out.x = start + wp.max(q.t - 5.0 * ON_SURFACE * g.dx, 0.0) * dirn  # clear of the on-surface zone
         out.n = q.normal
         if wp.dot(q.normal, dirn) > 0.0:
             out.n = -q.normal
+        # Stop on the path before the hit, STOP_GAP cells from the surface measured
+        # along its normal: a grazing particle stops that far back along its path, so
+        # it never ends inside the on-surface zone where its side would be ambiguous.
+        # The stop lies between the start (on the particle's side) and the first hit,
+        # so it is on the particle's side of every surface.
+        cos_hit = wp.max(-wp.dot(out.n, dirn), 1.0e-3)
+        out.x = start + wp.max(q.t - STOP_GAP * g.dx / cos_hit, 0.0) * dirn
         out.body = spec.face_body[q.face]
     return out
 
@@ -232,7 +262,10 @@ def colour_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32)
     c = Colour()
     c.body = -1
     if spec.cpic != 0 and near_surface(f, g, x[p]):
-        c = colour_point(spec, g, x[p], PARTICLE_BAND * g.dx)
+        side = wp.vec3(0.0)
+        if cbody[p] >= 0:
+            side = cn[p]  # keep the side it had (a split child keeps its parent's)
+        c = colour_point(spec, g, x[p], PARTICLE_BAND * g.dx, side)
     cp[p] = c.cp
     cn[p] = c.cn
     cbody[p] = c.body
@@ -241,7 +274,7 @@ def colour_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32)
 @wp.func
 def colour_node(spec: CollisionSpec, g: GridSpec, f: ColourField, n: int, c: wp.vec3i):
     xi = node_position(g, c)
-    col = colour_point(spec, g, xi, NODE_BAND * g.dx)
+    col = colour_point(spec, g, xi, NODE_BAND * g.dx, wp.vec3(0.0))
     if col.body >= 0:
         f.dist[n] = wp.length(xi - col.cp)
         f.dir[n] = col.cn

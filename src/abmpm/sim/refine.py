@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .colliders import CollisionSpec, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
 from .state import ParticleArrays, ParticleState
 from .transfer import stencil_base
@@ -40,7 +41,7 @@ def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0:
 @wp.kernel
 def split_particles(
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
-    s: ParticleArrays,
+    s: ParticleArrays, spec: CollisionSpec, g1: GridSpec,
 ):
     p = wp.tid()
     if flag[p] == 0:
@@ -55,6 +56,8 @@ def split_particles(
     mc = s.mass[p] / float(ns)
     Vc = s.volume[p] / float(ns)
     parent = s.id[p]
+    cbody = s.cbody[p]
+    cn = s.cn[p]
     first = n_old + offset[p] * (ns - 1)
     for c in range(ns):
         q = p
@@ -62,14 +65,21 @@ def split_particles(
             q = first + c - 1
         d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
         xc = xp + Fp * (h * d)
-        s.x[q] = xc
         s.v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
+        if spec.cpic != 0 and cbody >= 0:
+            # A child is never placed across a collider from its parent: near a sheet
+            # it stops on the parent's side (its velocity stays that of the lattice
+            # point, so momentum is still exact).
+            hit = stop_crossing(spec, g1, xp, xc, 0.0, cbody, cn)
+            if hit.hit != 0:
+                xc = hit.x
+        s.x[q] = xc
         s.C[q] = Cp
         s.F[q] = Fp
         s.plastic[q] = s.plastic[p]
         s.cp[q] = s.cp[p]
-        s.cn[q] = s.cn[p]
-        s.cbody[q] = s.cbody[p]
+        s.cn[q] = cn
+        s.cbody[q] = cbody
         s.mass[q] = mc
         s.volume[q] = Vc
         s.material[q] = s.material[p]
@@ -155,7 +165,7 @@ class Refiner:
         g.grow(int(self.counter.numpy()[0]))
         return old
 
-    def split(self, state: ParticleState, next_id: int) -> int:
+    def split(self, state: ParticleState, next_id: int, collision: CollisionSpec) -> int:
         """Split the level-0 particles inside the region; returns how many were split."""
         n = state.count
         if n == 0 or not self.region_cells.any():
@@ -173,7 +183,8 @@ class Refiner:
         ns = self.b**3
         state.reserve(n + n_split * (ns - 1))
         wp.launch(split_particles, dim=n, device=self.device,
-                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays()])
+                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), collision,
+                          self.fine.spec])
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split

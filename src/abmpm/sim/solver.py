@@ -82,6 +82,7 @@ class MPMSolver:
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ
         self._cmask = self._no_occ
+        self.max_speed = wp.zeros(1, dtype=float, device=device)  # written by G2P (atomic max)
 
     @property
     def grid(self) -> Grid:
@@ -106,6 +107,7 @@ class MPMSolver:
             self._p2g(state, fine, dt)
         for g in self.grids:
             self._grid_update(g, dt)
+        self.max_speed.zero_()
         for g in self.grids:
             self._g2p(state, g, dt)
 
@@ -146,8 +148,13 @@ class MPMSolver:
         wp.launch(
             transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
-                    s.arrays(), self._cmask_for(s)],
+                    s.arrays(), self._cmask_for(s), self.max_speed],
         )
+
+    def last_max_speed(self) -> float:
+        """Fastest particle speed after the last step (m/s; 1e30 if any velocity was
+        not finite). One scalar read from the device: the CFL time step follows it."""
+        return float(self.max_speed.numpy()[0])
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
@@ -193,7 +200,7 @@ class MPMSolver:
     def refine(self, state: ParticleState) -> None:
         """Split particles that entered the region (Eq. 15); activate the fine blocks
         the level-1 particles reach."""
-        n_split = self.refiner.split(state, self.next_id)
+        n_split = self.refiner.split(state, self.next_id, self.collision)
         if n_split:
             self.next_id += n_split * self.refiner.b**3
             self.colour_particles(state)

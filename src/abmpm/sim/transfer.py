@@ -49,6 +49,8 @@ from .materials import (
 )
 from .state import ParticleArrays
 
+FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
+
 
 @wp.func
 def bspline_weights(fx: wp.vec3):
@@ -62,8 +64,15 @@ def bspline_weights(fx: wp.vec3):
 
 @wp.func
 def stencil_base(g: GridSpec, x: wp.vec3):
+    # Lowest node of the 3x3x3 stencil, clamped so that the whole stencil lies in the
+    # grid for any x (a particle flung out of the domain, or NaN after a blow-up, must
+    # never index outside the node storage; the run is stopped by the speed check).
     X = (x - g.origin) * g.inv_dx
-    return wp.vec3i(int(X[0] - 0.5), int(X[1] - 0.5), int(X[2] - 0.5))
+    return wp.vec3i(
+        wp.clamp(int(X[0] - 0.5), 0, g.dims[0] - 3),
+        wp.clamp(int(X[1] - 0.5), 0, g.dims[1] - 3),
+        wp.clamp(int(X[2] - 0.5), 0, g.dims[2] - 3),
+    )
 
 
 @wp.func
@@ -244,6 +253,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         # particle state, updated in place (each thread touches only its own particle)
         s: ParticleArrays,
         cmask: wp.array(dtype=wp.int32),
+        max_speed: wp.array(dtype=float),
     ):
         # Eqs. 11-12: a particle gathers from its own level's grid only
         p = wp.tid()
@@ -301,38 +311,50 @@ def _make_g2p(cpic: bool, sparse: bool):
             s.F[p] = d.F
             s.plastic[p] = d.plastic
         xn = xp + dt * new_v
+        # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
+        # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
+        # a safety net. It comes before the collider test, so that the clamp can never
+        # move a particle through a surface after that test has stopped it.
+        for a in range(3):
+            xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
         if wp.static(cpic):
-            # no crossing: stop at the surface on the particle's own side
-            # A particle farther from every surface than it moves (relative to the
-            # collider) cannot cross one: only the others cast the ray. Particles
-            # outside the band last step are farther than a step, hence never cast.
+            # No crossing: stop at the surface on the particle's own side. A particle
+            # farther from every surface than it moves (relative to the collider)
+            # cannot cross one: only the others cast the ray. A particle outside the
+            # band casts one only if it moved farther than the band (a CFL violation).
             cb = s.cbody[p]
             reach = PARTICLE_BAND * g.dx
+            dist = PARTICLE_BAND * g.dx
+            side = xp - xn  # on the surface with no remembered side: it came from behind its motion
+            move = wp.length(xn - xp)
             if cb >= 0:
-                move = wp.length(xn - xp) + dt * wp.length(rigid_velocity(spec.bodies[cb], xp))
-                reach = wp.length(xp - s.cp[p]) + move + 0.01 * g.dx
-                if move >= wp.length(xp - s.cp[p]) - 0.01 * g.dx:
-                    hit = stop_crossing(spec, g, xp, xn, dt, cb, s.cn[p])
-                    if hit.hit != 0:
-                        xn = hit.x
-                        new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+                move = move + dt * wp.length(rigid_velocity(spec.bodies[cb], xp))
+                dist = wp.length(xp - s.cp[p])
+                reach = dist + move + 0.01 * g.dx
+                side = s.cn[p]
+            if move >= dist - 0.01 * g.dx:
+                hit = stop_crossing(spec, g, xp, xn, dt, cb, s.cn[p])
+                if hit.hit != 0:
+                    xn = hit.x
+                    new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+                    side = hit.n
             c = Colour()
             c.body = -1
             if near_surface(colour, g, xn):
                 # colour for the next step's transfers; the new closest point lies
                 # within the old distance plus the motion (triangle inequality)
-                c = colour_point(spec, g, xn, wp.min(reach, PARTICLE_BAND * g.dx))
+                c = colour_point(spec, g, xn, wp.min(reach, PARTICLE_BAND * g.dx), side)
                 if c.body < 0 and reach < PARTICLE_BAND * g.dx:
-                    c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx)
+                    c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx, side)
             s.cp[p] = c.cp
             s.cn[p] = c.cn
             s.cbody[p] = c.body
-        # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
-        # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
-        # a safety net that keeps stencils inside the grid. (Clamping at the plane
-        # itself would pile particles up there and silently compress material.)
-        for a in range(3):
-            xn[a] = wp.clamp(xn[a], g.domain_lo[a] - g.dx, g.domain_hi[a] + g.dx)
+        # the fastest particle of this step sets the next step's CFL time step; a
+        # non-finite velocity reads as infinitely fast, which stops the run
+        speed = wp.length(new_v)
+        if not wp.isfinite(speed):
+            speed = FAST
+        wp.atomic_max(max_speed, 0, speed)
         s.x[p] = xn
         s.v[p] = new_v
         s.C[p] = new_C
