@@ -73,6 +73,7 @@ class Particles:
     material: np.ndarray
     level: np.ndarray
     id: np.ndarray
+    family: np.ndarray  # id of the parent a split particle came from, else -1
     C: np.ndarray
     F: np.ndarray
     plastic: np.ndarray
@@ -124,6 +125,7 @@ class Simulation:
     """A running simulation of a :class:`~abmpm.scene.model.Scene`."""
 
     def __init__(self, scene: Scene, device: str | None = None, mode: str | None = None):
+        scene.check_feasible(mode, device)  # memory and time stepping (SceneError), before allocating
         init_warp()
         st = scene.simulation
         self.mode = mode or st.refinement.mode
