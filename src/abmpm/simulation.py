@@ -33,6 +33,9 @@ SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory cohe
 # A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the
 # fastest particle moves ~1000x the material's wave speed.
 MIN_DT_FRACTION = 1.0e-3
+# How far the sound speed of compressed fluid may rise before the time step follows
+# it (see Simulation.cfl_dt): weak compression (J > ~0.87 for gamma = 7) costs no steps.
+STIFFENING_SLACK = 1.5
 
 _warp_ready = False
 
@@ -43,6 +46,10 @@ def init_warp() -> None:
         if not os.environ.get("ABMPM_VERBOSE") and hasattr(wp, "LOG_WARNING"):
             wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no module-load chatter
         wp.config.quiet = True
+        if os.environ.get("ABMPM_WARP_DEBUG"):
+            # Warp's debug build: every array access is bounds-checked (slow; for tests)
+            wp.config.mode = "debug"
+            wp.config.verify_fp = False
         wp.init()
         _warp_ready = True
 
@@ -171,11 +178,11 @@ class Simulation:
         self.history: list[dict] = []
         # a step shorter than this fraction of the step at rest means the run has blown up
         self._min_dt = MIN_DT_FRACTION * self.cfl_dt(0.0)
-        self._choose_dt(float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()))
+        self._choose_dt((float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()), 1.0))
         self.solver.sort_by_cell(self._state)
         self.solver.colour_particles(self._state)
         self._last_good = self._state.numpy()
-        self._last_good_speed = self._cfl_speed
+        self._last_good_signal = self._signal
         self.history.append(self._diagnostics(self._last_good))
 
     # ------------------------------------------------------------------ time stepping
@@ -183,17 +190,21 @@ class Simulation:
     def _load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         self._state = ParticleState.from_numpy(arrays, self.device)
 
-    def cfl_dt(self, max_speed: float) -> float:
+    def cfl_dt(self, max_speed: float, stiffening: float = 1.0) -> float:
         """CFL step on the finest active spacing for the wave speed plus the fastest
-        particle, capped by max_dt."""
+        particle, capped by max_dt. Where a fluid is compressed its sound speed is
+        ``stiffening`` times the speed at rest; up to STIFFENING_SLACK of that is taken
+        from the margin of the CFL number (the effective CFL number there stays below
+        cfl * STIFFENING_SLACK = 0.6 by default), beyond it the step shrinks."""
         st = self.scene.simulation
-        return min(st.max_dt, st.cfl * self.finest_active_dx / (self.wave_speed + max_speed))
+        c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
+        return min(st.max_dt, st.cfl * self.finest_active_dx / (c + max_speed))
 
-    def _choose_dt(self, max_speed: float) -> None:
+    def _choose_dt(self, signal: tuple[float, float]) -> None:
         """At a frame start: the CFL step, shortened so that a whole number of equal
         substeps fills the frame."""
-        self._cfl_speed = max_speed
-        self._split_rest(self.frame_dt, self.cfl_dt(max_speed))
+        self._signal = signal
+        self._split_rest(self.frame_dt, self.cfl_dt(*signal))
         self.substeps = self._left
 
     def _split_rest(self, rest: float, dt_max: float) -> None:
@@ -201,18 +212,20 @@ class Simulation:
         self._left = max(1, math.ceil(rest / dt_max - 1e-9))
         self.dt = rest / self._left
 
-    def _follow_speed(self, max_speed: float) -> None:
+    def _follow_signal(self, signal: tuple[float, float]) -> None:
         """After every substep: the fastest particle of that step bounds the next one
         (an impact can multiply speeds within a frame). The rest of the frame is
         re-split only when the current step has become too long, so a frame with
         steady speeds keeps equal substeps."""
-        if not math.isfinite(max_speed) or max_speed >= 1.0e29:
+        max_speed, stiffening = signal
+        if not (math.isfinite(max_speed) and math.isfinite(stiffening)) or max_speed >= 1.0e29:
             self._blow_up("a particle velocity became NaN/inf")
-        self._cfl_speed = max_speed
-        dt_max = self.cfl_dt(max_speed)
+        self._signal = signal
+        dt_max = self.cfl_dt(*signal)
         if dt_max < self._min_dt:
             self._blow_up(
-                f"max speed {max_speed:.3g} m/s needs a time step below {self._min_dt:.3g} s "
+                f"max speed {max_speed:.3g} m/s (sound speed x{stiffening:.3g} where compressed) "
+                f"needs a time step below {self._min_dt:.3g} s "
                 f"({MIN_DT_FRACTION:g} of the step at rest). Lower the impact speed, the "
                 f"collider separation or the stiffness, or refine less"
             )
@@ -273,7 +286,7 @@ class Simulation:
             self._end_frame()
         else:
             self._t_frame += self.dt
-            self._follow_speed(self.solver.last_max_speed())
+            self._follow_signal(self.solver.last_signal())
 
     def advance(self, seconds: float | None = None, frames: int | None = None, callback=None) -> None:
         """Run whole frames, or a duration in seconds (stopping at the first substep
@@ -302,15 +315,15 @@ class Simulation:
                 f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
-        speed = self.solver.last_max_speed()
-        if not math.isfinite(speed) or speed >= 1.0e29:
+        signal = self.solver.last_signal()
+        if not math.isfinite(signal[0]) or signal[0] >= 1.0e29:
             self.frame -= 1
             self._blow_up("a particle velocity became NaN/inf")
         diag = self._diagnostics(snap)
         self._last_good = snap
         self.history.append(diag)
-        self._choose_dt(speed)
-        self._last_good_speed = speed
+        self._choose_dt(signal)
+        self._last_good_signal = signal
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
             self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:
@@ -412,8 +425,8 @@ class Simulation:
             "steps": self.history[-1]["steps"] if last_good else self.steps,
             "dt": self.dt,
             "substeps": self.substeps,
-            # the fastest particle at that frame: it sets the next frame's time step
-            "cfl_speed": self._last_good_speed if last_good else self._cfl_speed,
+            # fastest particle and fluid stiffening at that frame: they set the next time step
+            "cfl_signal": list(self._last_good_signal if last_good else self._signal),
             "history": [h for h in self.history if h["frame"] <= frame],
             "scene": self.scene.name,
             "mode": self.mode,
@@ -431,12 +444,12 @@ class Simulation:
         self._t_frame = 0.0
         self._taken = 0
         self.history = list(meta["history"])
-        if "cfl_speed" in meta:
-            self._choose_dt(float(meta["cfl_speed"]))
+        if "cfl_signal" in meta:
+            self._choose_dt(tuple(float(a) for a in meta["cfl_signal"]))
         else:  # checkpoints written before the per-substep CFL
             self.dt, self.substeps = float(meta["dt"]), int(meta["substeps"])
-            self._left, self._cfl_speed = self.substeps, 0.0
-        self._last_good_speed = self._cfl_speed
+            self._left, self._signal = self.substeps, (0.0, 1.0)
+        self._last_good_signal = self._signal
         self.solver.next_id = int(meta.get("next_id", self.solver.next_id))
         self.solver.reset_step_count(self.steps)
         self.solver.adopt(self._state)

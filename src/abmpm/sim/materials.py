@@ -100,10 +100,9 @@ def pressure_from_J(bulk: float | np.ndarray, gamma: float, J):
 
 
 @wp.func
-def fluid_pressure(mat: MaterialParams, J: float):
-    # Tait equation of state p = K (J^-gamma - 1) / gamma, so dp/dJ = -K at J = 1.
-    # Integer exponents (the usual 1 or 7) by multiplication: pow() would cost as
-    # much as a third of the whole P2G on the CPU.
+def tait_power(mat: MaterialParams, J: float):
+    # J^-gamma. Integer exponents (the usual 1 or 7) by multiplication: pow() would
+    # cost as much as a third of the whole P2G on the CPU.
     n = int(mat.gamma)
     inv_J = 1.0 / J
     r = float(1.0)
@@ -112,7 +111,24 @@ def fluid_pressure(mat: MaterialParams, J: float):
             r = r * inv_J
     else:
         r = wp.pow(J, -mat.gamma)
-    return mat.bulk * (r - 1.0) / mat.gamma
+    return r
+
+
+@wp.func
+def fluid_pressure(mat: MaterialParams, J: float):
+    # Tait equation of state p = K (J^-gamma - 1) / gamma, so dp/dJ = -K at J = 1.
+    return mat.bulk * (tait_power(mat, J) - 1.0) / mat.gamma
+
+
+@wp.func
+def stiffening(mat: MaterialParams, J: float):
+    """Sound speed of a fluid compressed to J over its speed at rest: dp/drho =
+    K J^(1 - gamma) / rho0, so sqrt(J^(1 - gamma)), > 1 under compression. An impact
+    compresses the fluid and its sound speed grows with it; the CFL step must follow
+    (host ``wave_speed`` is the speed at rest). Solids and expanded fluids: 1."""
+    if mat.model != MODEL_FLUID or J >= 1.0 or J <= 0.0:
+        return 1.0
+    return wp.sqrt(J * tait_power(mat, J))
 
 
 @wp.func

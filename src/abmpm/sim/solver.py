@@ -82,7 +82,8 @@ class MPMSolver:
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ
         self._cmask = self._no_occ
-        self.max_speed = wp.zeros(1, dtype=float, device=device)  # written by G2P (atomic max)
+        # [max speed, max sound-speed stiffening], written by G2P (atomic max)
+        self.signal = wp.array([0.0, 1.0], dtype=float, device=device)
 
     @property
     def grid(self) -> Grid:
@@ -107,7 +108,7 @@ class MPMSolver:
             self._p2g(state, fine, dt)
         for g in self.grids:
             self._grid_update(g, dt)
-        self.max_speed.zero_()
+        self.signal.assign(np.array([0.0, 1.0], dtype=np.float32))
         for g in self.grids:
             self._g2p(state, g, dt)
 
@@ -148,13 +149,15 @@ class MPMSolver:
         wp.launch(
             transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
             inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
-                    s.arrays(), self._cmask_for(s), self.max_speed],
+                    s.arrays(), self._cmask_for(s), self.signal],
         )
 
-    def last_max_speed(self) -> float:
-        """Fastest particle speed after the last step (m/s; 1e30 if any velocity was
-        not finite). One scalar read from the device: the CFL time step follows it."""
-        return float(self.max_speed.numpy()[0])
+    def last_signal(self) -> tuple[float, float]:
+        """After the last step: the fastest particle's speed (m/s; 1e30 if a velocity
+        was not finite) and the largest factor by which compression raised a fluid's
+        sound speed. One small read from the device: the CFL time step follows them."""
+        a = self.signal.numpy()
+        return float(a[0]), float(a[1])
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a

@@ -45,6 +45,7 @@ from .materials import (
     fluid_stress,
     fluid_volume_update,
     solid_stress,
+    stiffening,
     update_deformation,
 )
 from .state import ParticleArrays
@@ -253,7 +254,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         # particle state, updated in place (each thread touches only its own particle)
         s: ParticleArrays,
         cmask: wp.array(dtype=wp.int32),
-        max_speed: wp.array(dtype=float),
+        signal: wp.array(dtype=float),
     ):
         # Eqs. 11-12: a particle gathers from its own level's grid only
         p = wp.tid()
@@ -349,12 +350,15 @@ def _make_g2p(cpic: bool, sparse: bool):
             s.cp[p] = c.cp
             s.cn[p] = c.cn
             s.cbody[p] = c.body
-        # the fastest particle of this step sets the next step's CFL time step; a
-        # non-finite velocity reads as infinitely fast, which stops the run
+        # The fastest particle, and the most compressed fluid's sound speed over its
+        # speed at rest, set the next step's CFL time step; a non-finite velocity
+        # reads as infinitely fast, which stops the run.
         speed = wp.length(new_v)
         if not wp.isfinite(speed):
             speed = FAST
-        wp.atomic_max(max_speed, 0, speed)
+        wp.atomic_max(signal, 0, speed)
+        if mat.model == MODEL_FLUID:
+            wp.atomic_max(signal, 1, stiffening(mat, s.plastic[p]))
         s.x[p] = xn
         s.v[p] = new_v
         s.C[p] = new_C
