@@ -6,8 +6,11 @@
     abmpm render DIR             re-render the preview of a finished run
     abmpm bench                  performance benchmark
 
-User errors (a bad scene key, a missing mesh, an unwritable folder, a blow-up)
-print one line ``error: <message>`` on stderr and exit with status 2.
+User errors (a bad scene key, a missing mesh, an unwritable folder, a scene too big
+for the machine, a blow-up) print one line ``error: <message>`` per problem on
+stderr and exit with status 2; command-line mistakes print one line
+``abmpm: error: <message>`` (no usage block) and exit with status 2. Paths and names
+are printed literally (``[`` in a path is not rich markup).
 """
 
 from __future__ import annotations
@@ -59,6 +62,13 @@ def _stdout():
     return Console(highlight=False)
 
 
+def _esc(text) -> str:
+    """User text (paths, names, messages) printed through rich: '[' is not markup."""
+    from rich.markup import escape
+
+    return escape(str(text))
+
+
 def _stderr():
     from rich.console import Console
 
@@ -81,7 +91,7 @@ def _cmd_run(args) -> int:
     con = _stderr()
     label = args.scene if os.path.exists(args.scene) else f"{args.scene} (built-in)"
     if not args.quiet:
-        con.print(f"[bold]abmpm[/bold] running [cyan]{label}[/cyan] -> {out}")
+        con.print(f"[bold]abmpm[/bold] running [cyan]{_esc(label)}[/cyan] -> {_esc(out)}")
     try:
         summary = run(
             scene, out, device=args.device, frames=args.frames, resume=args.resume,
@@ -108,15 +118,15 @@ def _print_summary(s: dict, out: Path) -> None:
     con = _stdout()
     sps = s.get("steps_per_second")
     con.print(
-        f"[green]done[/green]: {s['scene']}: {s['particle_count']:,} particles, {s['frames']} frames "
+        f"[green]done[/green]: {_esc(s['scene'])}: {s['particle_count']:,} particles, {s['frames']} frames "
         f"({s['sim_time']:.2f} s simulated), {s['steps']:,} steps"
         + (f" at {sps:,.0f} steps/s" if sps else "")
-        + f" on {s['device']} in {s['wall_seconds']:.1f} s"
+        + f" on {_esc(s['device'])} in {s['wall_seconds']:.1f} s"
     )
     outputs = s.get("outputs", {})
     for key in ("preview", "poster", "energy_plot", "frames", "colliders", "checkpoints", "usd", "summary"):
         if key in outputs:
-            con.print(f"  {key:<12} {out / outputs[key]}")
+            con.print(f"  {key:<12} {_esc(out / outputs[key])}")
 
 
 def _cmd_scenes(args) -> int:
@@ -133,9 +143,9 @@ def _cmd_scenes(args) -> int:
         try:
             sc = load_scene(name)
             mats = ", ".join(sorted({m.model for m in sc.materials}))
-            table.add_row(name, mats, f"{sc.simulation.duration:g} s", desc)
+            table.add_row(_esc(name), mats, f"{sc.simulation.duration:g} s", _esc(desc))
         except AbmpmError as exc:  # a broken built-in must not hide the others
-            table.add_row(name, "?", "?", f"[red]{exc}[/red]")
+            table.add_row(name, "?", "?", f"[red]{_esc(exc)}[/red]")
     _stdout().print(table)
     return EXIT_OK
 
@@ -149,7 +159,7 @@ def _cmd_info(args) -> int:
 
     con = _stdout()
     con.print(f"abmpm   {getattr(abmpm, '__version__', '?')}")
-    con.print(f"python  {platform.python_version()} ({sys.executable})")
+    con.print(f"python  {platform.python_version()} ({_esc(sys.executable)})")
     con.print(f"numpy   {np.__version__}")
     try:
         import warp as wp
@@ -167,9 +177,9 @@ def _cmd_info(args) -> int:
             con.print(f"  {d.alias:<8}{extra}")
         if wp.get_cuda_device_count() == 0:
             con.print("  (no CUDA device: runs use the CPU)")
-        con.print(f"kernel cache  {wp.config.kernel_cache_dir}")
+        con.print(f"kernel cache  {_esc(wp.config.kernel_cache_dir)}")
     except Exception as exc:  # info must work even when Warp is broken
-        con.print(f"warp    unavailable ({type(exc).__name__}: {exc})")
+        con.print(f"warp    unavailable ({type(exc).__name__}: {_esc(exc)})")
     for mod, label in (("pxr", "usd-core"), ("imageio_ffmpeg", "imageio-ffmpeg")):
         import importlib.util
 
@@ -182,7 +192,9 @@ def _cmd_render(args) -> int:
 
     info = render_folder(args.dir, progress=not args.quiet)
     if not args.quiet:
-        _stdout().print(f"[green]rendered[/green] {info['frames']} frames -> {info['preview']}, {info['poster']}")
+        _stdout().print(
+            f"[green]rendered[/green] {info['frames']} frames -> {_esc(info['preview'])}, {_esc(info['poster'])}"
+        )
     return EXIT_OK
 
 
@@ -209,8 +221,27 @@ def _cmd_bench(args) -> int:
 # --------------------------------------------------------------------------- parser
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors: ``abmpm: error: ...`` and exit status 2
+    (no usage block: ``abmpm --help`` / ``abmpm run --help`` show it)."""
+
+    def error(self, message: str):
+        message = " ".join(str(message).split())
+        self.exit(EXIT_ERROR, f"abmpm: error: {message} (see: {self.prog} --help)\n")
+
+
+def _frames_arg(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="abmpm",
         description="Adaptive boundary MLS-MPM simulator (NVIDIA Warp, CPU and CUDA).",
     )
@@ -227,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", "-o", metavar="DIR", help="output folder (default: out/<scene name>/)")
     r.add_argument("--device", "-d", metavar="DEVICE",
                    help="cpu, cuda or cuda:N (default: the scene's, else cuda when available)")
-    r.add_argument("--frames", "-n", type=int, metavar="N", help="number of frames (default: duration * fps)")
+    r.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="number of frames (default: duration * fps)")
     r.add_argument("--mode", choices=["original", "adaptive", "finest"],
                    help="refinement mode, overriding the scene's (default out: out/<scene>_<mode>/)")
     r.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in the output folder")
@@ -271,6 +302,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {lines[0]}", file=sys.stderr)
         for line in lines[1:]:
             print(f"error: {line}", file=sys.stderr)
+        return EXIT_ERROR
+    except MemoryError:
+        print("error: out of memory; use a coarser grid (raise simulation.dx) or fewer particles", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

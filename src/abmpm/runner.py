@@ -30,8 +30,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.markup import escape
 
-from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
+from abmpm.errors import AbmpmError, OutputError, SceneError, SimulationBlowUp
 from abmpm.io.atomic import atomic_write
 from abmpm.io.checkpoint import (
     checkpoint_name,
@@ -112,6 +113,28 @@ def _prepare_out_dir(out: Path) -> None:
         os.unlink(probe)
     except OSError as exc:
         raise OutputError(f"cannot write to output folder {out}: {exc.strerror or exc}") from None
+
+
+# Hidden temporary files that an interrupted write leaves behind: atomic_write's
+# ".{stem}.XXXXXXXX.tmp{suffix}" and the write probe ".abmpm-write-test-XXXXXXXX".
+_TEMP_RE = re.compile(r"^\.(?:.+\.[a-z0-9_]{8}\.tmp(?:\.[A-Za-z0-9]+)?|abmpm-write-test-[a-z0-9_]{8})$")
+
+
+def _clean_temporaries(out: Path) -> list[Path]:
+    """Remove the temporary files that interrupted writes left in ``out`` and in its
+    frames/colliders/checkpoints folders (only names abmpm's writers use)."""
+    removed = []
+    for folder in (out, out / FRAMES_DIR, out / COLLIDERS_DIR, out / CHECKPOINTS_DIR):
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            if _TEMP_RE.match(p.name) and p.is_file() and not p.is_symlink():
+                try:
+                    p.unlink()
+                except OSError as exc:
+                    raise OutputError(f"cannot remove temporary file {p}: {exc.strerror or exc}") from None
+                removed.append(p)
+    return removed
 
 
 def _numbered(folder: Path, pattern: re.Pattern) -> list[tuple[int, Path]]:
@@ -508,12 +531,17 @@ def run(
     scene = load_scene(scene) if not isinstance(scene, Scene) else scene
     out = Path(out_dir)
     total = total_frames(scene, frames)
+    # memory and time stepping, before the output folder or anything big is made
+    scene.check_feasible(None, device)
     _prepare_out_dir(out)
+    _clean_temporaries(out)
     if scene.output.usd and importlib.util.find_spec("pxr") is None:
         raise OutputError("output.usd = true needs usd-core: pip install 'abmpm[usd]'")
     out_cfg = scene.output
 
     sim = Simulation(scene, device)
+    if not resume:
+        _check_initial_state(scene, sim)
     notes: list[str] = []
     resumed_from = None
     if resume:
@@ -567,7 +595,7 @@ def run(
     status, message = "completed", None
     with _Progress(progress, console) as bar:
         for note in notes:
-            bar.print(f"[yellow]{note}[/yellow]")
+            bar.print(f"[yellow]{escape(note)}[/yellow]")
         t_sim = time.perf_counter()
 
         def on_frame(s) -> None:
@@ -676,6 +704,25 @@ def run(
             with contextlib.suppress(AbmpmError, OSError):
                 write_json(out / SUMMARY_FILE, summary)
         raise err
+
+
+def _check_initial_state(scene: Scene, sim) -> None:
+    """Refuse to start from a state that is not finite in single precision (a frame 0
+    of NaN would be written as if it were good)."""
+    p = sim.particles()
+    for name in ("x", "v", "mass", "volume", "C", "F"):
+        a = getattr(p, name)
+        bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1)
+        if not bad.any():
+            continue
+        mat = scene.materials[int(p.material[np.argmax(bad)])].name
+        bodies = [i for i, b in enumerate(scene.bodies) if b.material == mat]
+        where = f"bodies[{bodies[0]}]" if len(bodies) == 1 else f"bodies of material {mat!r}"
+        key = {"x": "", "v": ".velocity"}.get(name, "") if len(bodies) == 1 else ""
+        raise SceneError(
+            f"{where}{key}: the initial particle field '{name}' is not finite in single precision "
+            f"({int(bad.sum())} particles); check the body's velocity, angular_velocity, material and mesh"
+        )
 
 
 def _check_resumable(out: Path, scene: Scene, sim, ckpt: Path) -> None:

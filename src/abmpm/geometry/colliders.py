@@ -253,7 +253,12 @@ def _glyph_rings(text: str, font: str):
     from matplotlib.path import Path
     from matplotlib.textpath import TextPath
 
-    path = TextPath((0.0, 0.0), text, size=_TEXT_EM, prop=FontProperties(family=font))
+    try:
+        path = TextPath((0.0, 0.0), text, size=_TEXT_EM, prop=FontProperties(family=font))
+    except (AttributeError, ValueError, IndexError):
+        # matplotlib fails on text whose characters have no outline at all (e.g. a
+        # zero-width space): there is nothing to cut out
+        return []
     rings, current = [], []
     t = np.linspace(0.0, 1.0, _CURVE_STEPS + 1)[1:]
     for segment, code in path.iter_bezier():

@@ -7,6 +7,7 @@ the CLI can print one line that says which file to fix and how.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,10 @@ from abmpm.errors import MeshError
 from abmpm.geometry.transforms import euler_matrix
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
+# Vertex coordinates (m, after scaling) beyond this are refused: merging duplicate
+# vertices rounds coordinates / 1e-8 to 64-bit integers, and the solver works in
+# single precision; no scene needs a mesh ten million kilometres across.
+MAX_COORDINATE = 1.0e10
 
 
 def load_mesh(path, where: str) -> trimesh.Trimesh:
@@ -23,9 +28,11 @@ def load_mesh(path, where: str) -> trimesh.Trimesh:
 
     ``where`` names the scene field that referenced the file (``"bodies[2].file"``)
     and is appended to the message so the user finds both the file and the key.
-    Multi-object files are merged into one mesh (``force="mesh"``), and trimesh's
-    default processing merges duplicate vertices, so an STL triangle soup becomes a
-    connected surface whose closedness can be checked.
+    Multi-object files are merged into one mesh (``force="mesh"``). The file is read
+    without processing first, so that non-finite vertices are reported as such (the
+    processing would silently drop them and leave a hole); then duplicate vertices are
+    merged, so an STL triangle soup becomes a connected surface whose closedness can
+    be checked.
     """
     path = Path(path)
     ref = f" (referenced by {where})" if where else ""
@@ -33,24 +40,60 @@ def load_mesh(path, where: str) -> trimesh.Trimesh:
         raise MeshError(f"{path}: mesh file not found{ref}")
     if not path.is_file():
         raise MeshError(f"{path}: is not a file{ref}")
-    if path.suffix.lower() not in MESH_SUFFIXES:
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
         raise MeshError(
             f"{path}: unsupported mesh format '{path.suffix}'; use one of {', '.join(MESH_SUFFIXES)}{ref}"
         )
+    fmt = suffix[1:].upper()
     try:
-        mesh = trimesh.load(path, force="mesh")
+        size = path.stat().st_size
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise MeshError(f"{path}: cannot read mesh file ({exc.strerror or exc}){ref}") from None
+    if size == 0:
+        raise MeshError(f"{path}: mesh file is empty{ref}")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a bad file must not print warnings as well
+            mesh = trimesh.load(path, force="mesh", process=False)
+    except ImportError:
+        # trimesh falls back to an optional text-encoding detector for undecodable bytes
+        raise MeshError(
+            f"{path}: cannot read mesh: not a valid {fmt} file (binary or non-UTF-8 content){ref}"
+        ) from None
     except Exception as exc:  # trimesh raises many types for a corrupt file
-        raise MeshError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc}){ref}") from exc
+        detail = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+        raise MeshError(f"{path}: cannot read mesh: not a valid {fmt} file ({detail}){ref}") from None
     if not isinstance(mesh, trimesh.Trimesh):
         raise MeshError(f"{path}: file holds no triangle mesh (got {type(mesh).__name__}){ref}")
-    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{path}: mesh is empty (no triangles){ref}")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise MeshError(f"{path}: mesh has non-finite vertex coordinates{ref}")
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"{path}: mesh has non-finite vertex coordinates (nan or inf in {int(bad.sum())} of "
+            f"{len(vertices)} vertices, the first is vertex {int(np.argmax(bad))}, counting from 0){ref}"
+        )
+    if np.abs(vertices).max() > MAX_COORDINATE:
+        raise MeshError(
+            f"{path}: mesh has vertex coordinates up to {np.abs(vertices).max():.3g}, more than "
+            f"{MAX_COORDINATE:.0e}; is the file in the right units?{ref}"
+        )
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshError(f"{path}: a face refers to a vertex that the file does not have{ref}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mesh.process()
+    if len(mesh.faces) == 0:
+        raise MeshError(f"{path}: mesh is empty (only degenerate triangles){ref}")
     return mesh
 
 
-def require_closed(mesh: trimesh.Trimesh, path) -> None:
+def require_closed(mesh: trimesh.Trimesh, path, where: str = "") -> None:
     """Refuse a mesh with holes as a solid body.
 
     Inside/outside is only defined for a closed surface; filling an open one would
@@ -58,9 +101,10 @@ def require_closed(mesh: trimesh.Trimesh, path) -> None:
     error rather than a guess. Open meshes are still fine as colliders.
     """
     if not mesh.is_watertight:
+        ref = f" (referenced by {where})" if where else ""
         raise MeshError(
             f"{path}: mesh is not closed (not watertight), so it cannot be filled as a solid body; "
-            "close the holes or use it as a collider"
+            f"close the holes or use it as a collider{ref}"
         )
 
 

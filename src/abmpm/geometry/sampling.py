@@ -18,13 +18,14 @@ put a regular sub-lattice of the simulation grid in it, keep the lattice points 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from abmpm.errors import SceneError
-from abmpm.geometry.meshes import load_mesh, require_closed, transform_mesh
+from abmpm.geometry.meshes import MAX_COORDINATE, load_mesh, require_closed, transform_mesh
 from abmpm.geometry.shapes import (
     bunny_ellipsoids,
     ellipsoid_half_extent,
@@ -132,8 +133,16 @@ def _bunny(body, resolve, where):
 def _mesh(body, resolve, where):
     path = Path(resolve(body.file))
     mesh = load_mesh(path, f"{where}.file")
-    require_closed(mesh, path)
-    mesh = transform_mesh(mesh, body.scale, body.rotation, body.translation)
+    require_closed(mesh, path, f"{where}.file")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # overflow: reported below
+        mesh = transform_mesh(mesh, body.scale, body.rotation, body.translation)
+    reach = np.abs(np.asarray(mesh.vertices, dtype=np.float64)).max()
+    if not np.isfinite(reach) or reach > MAX_COORDINATE:
+        raise SceneError(
+            f"{where}.scale: the placed mesh reaches {reach:.3g} m from the origin, more than "
+            f"{MAX_COORDINATE:.0e} m; check scale and translation"
+        )
     lo, hi = mesh.bounds
     return np.asarray(lo, np.float64), np.asarray(hi, np.float64), lambda p: inside_mesh(p, mesh)
 

@@ -291,6 +291,13 @@ def format_validation_error(exc: ValidationError, label: str) -> str:
         merged.setdefault(path, [])
         if msg not in merged[path]:
             merged[path].append(msg)
+    # A union (scale: a number or [x, y, z]) reports a type mismatch for one member
+    # and the real problem inside the other (scale[1]: ...): keep the specific one.
+    for path in list(merged):
+        if path and any(p.startswith((path + "[", path + ".")) for p in merged):
+            merged[path] = [m for m in merged[path] if not m.startswith("expected ")]
+            if not merged[path]:
+                del merged[path]
     lines = []
     for path, msgs in merged.items():
         expected = [m for m in msgs if m.startswith("expected ")]

@@ -12,15 +12,70 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
 
-Vec3 = tuple[float, float, float]
+# Types are strict (a string is not a number, 1 is not true) except that an integer is
+# a valid float (TOML ``dx = 1``) and containers are lax: a vector may be a TOML list or
+# a Python list or tuple, a path a string. The items of a container stay strict.
 PositiveFloat = Annotated[float, Field(gt=0)]
+Vec3 = Annotated[tuple[float, float, float], Strict(False)]
+Pair = Annotated[tuple[PositiveFloat, PositiveFloat], Strict(False)]
+Triple = Annotated[tuple[PositiveFloat, PositiveFloat, PositiveFloat], Strict(False)]
+FilePath = Annotated[Path, Strict(False)]
+Box = Annotated[tuple[Vec3, Vec3], Strict(False)]
+
+# The solver computes in single precision: a number beyond FLOAT32_MAX cannot even be
+# stored, and a non-zero one below FLOAT32_TINY loses its precision or becomes 0.
+FLOAT32_MAX = 3.4028234663852886e38
+FLOAT32_TINY = 1.1754943508222875e-38
+
+
+def _plain(value):
+    """numpy scalars and arrays (np.float32, np.int64, np.bool_) -> Python numbers and
+    lists, recursively, so that strict validation treats them like the Python values."""
+    if isinstance(value, (list, tuple)):
+        out = [_plain(v) for v in value]
+        return tuple(out) if isinstance(value, tuple) else out
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+def _out_of_range(value, index: tuple = ()):
+    """(index, value) of the first float in ``value`` that float32 cannot hold, or None."""
+    if isinstance(value, float) and (abs(value) > FLOAT32_MAX or 0.0 < abs(value) < FLOAT32_TINY):
+        return index, value
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            found = _out_of_range(v, index + (i,))
+            if found is not None:
+                return found
+    return None
 
 
 class _Strict(BaseModel):
     # Unknown keys are errors: a typo in a scene file must not be silently ignored.
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    # strict: "0.04" is not a number and "yes" is not a boolean; allow_inf_nan: inf and
+    # nan (valid TOML) are refused wherever a number is expected, vectors included.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, strict=True, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _numpy_scalars(cls, data):
+        return {k: _plain(v) for k, v in data.items()} if isinstance(data, dict) else data
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _single_precision(cls, value):
+        found = _out_of_range(value)
+        if found is not None:
+            index, x = found
+            item = f" (item {''.join(f'[{i}]' for i in index)})" if index else ""
+            raise ValueError(
+                f"{x:g}{item} is outside the single-precision range of the solver "
+                "(0 or 1.2e-38 <= |x| <= 3.4e38)"
+            )
+        return value
 
 
 # --------------------------------------------------------------------------- simulation
@@ -68,9 +123,23 @@ class Refinement(_Strict):
     threshold: float = Field(1.5, gt=0, description="boundary density above which coarse cells are refined")
     bandwidth: float = Field(1.0, gt=0, description="Gaussian bandwidth h of the density, in coarse cells")
     halo: int = Field(1, ge=0, description="refined cells grow by this many coarse cells")
-    boxes: list[tuple[Vec3, Vec3]] = Field(default_factory=list, description="extra boxes to refine, [min, max]")
+    boxes: Annotated[list[Box], Strict(False)] = Field(
+        default_factory=list, description="extra boxes to refine, [min, max]"
+    )
     merge: bool = Field(False, description="merge split families back once they have left the region")
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
+
+    @field_validator("boxes")
+    @classmethod
+    def _ordered_boxes(cls, boxes):
+        for i, (lo, hi) in enumerate(boxes):
+            bad = [a for a in range(3) if lo[a] > hi[a]]
+            if bad:
+                a = bad[0]
+                raise ValueError(
+                    f"box {i}: min must not exceed max on any axis (axis {'xyz'[a]}: {lo[a]:g} > {hi[a]:g})"
+                )
+        return boxes
 
     @property
     def split_count(self) -> int:
@@ -87,7 +156,7 @@ class SimulationSettings(_Strict):
     fps: PositiveFloat = 30.0
     cfl: float = Field(0.4, gt=0, le=1.0, description="time step = cfl * dx / wave speed")
     max_dt: PositiveFloat = 1e-3
-    seed: int = 0
+    seed: int = Field(0, ge=0, description="seed of the particle jitter")
     device: str | None = Field(None, description="'cpu', 'cuda' or 'cuda:N'; default: cuda when available")
     walls: Walls = Walls()
     refinement: Refinement = Refinement()
@@ -103,6 +172,14 @@ class SimulationSettings(_Strict):
                     f"domain_max must exceed domain_min on every axis (axis {'xyz'[axis]}: "
                     f"{self.domain_min[axis]} >= {self.domain_max[axis]})"
                 )
+        far = max(max(abs(c) for c in self.domain_min), max(abs(c) for c in self.domain_max))
+        if far / self.dx > 2**20:
+            key = "domain_min" if max(abs(c) for c in self.domain_min) >= far else "domain_max"
+            raise ValueError(
+                f"{key} lies {far:g} m from the origin, {far / self.dx:.3g} cells of dx: "
+                "single precision cannot resolve the grid there (at most 2^20 = 1048576 cells); "
+                "move the domain near the origin or raise dx"
+            )
         cells = [(self.domain_max[a] - self.domain_min[a]) / self.dx for a in range(3)]
         if min(cells) < 4:
             raise ValueError(f"dx={self.dx} leaves fewer than 4 cells across the domain")
@@ -205,14 +282,14 @@ class SphereBody(_BodyBase):
 class EllipsoidBody(_BodyBase):
     shape: Literal["ellipsoid"] = "ellipsoid"
     center: Vec3
-    radii: tuple[PositiveFloat, PositiveFloat, PositiveFloat]
+    radii: Triple
     rotation: Vec3 = Field((0.0, 0.0, 0.0), description="XYZ Euler angles, degrees")
 
 
 class MeshBody(_BodyBase):
     shape: Literal["mesh"] = "mesh"
-    file: Path
-    scale: float | tuple[PositiveFloat, PositiveFloat, PositiveFloat] = 1.0
+    file: FilePath
+    scale: float | Triple = 1.0
     rotation: Vec3 = (0.0, 0.0, 0.0)
     translation: Vec3 = (0.0, 0.0, 0.0)
 
@@ -253,7 +330,9 @@ class Motion(_Strict):
     velocity: Vec3 = Field((0.0, 0.0, 0.0), description="m/s")
     angular_velocity: Vec3 = Field((0.0, 0.0, 0.0), description="rad/s about the pivot")
     pivot: Vec3 | None = Field(None, description="rotation centre; default: the collider's center")
-    keyframes: list[Keyframe] = Field(default_factory=list, description="overrides the velocities")
+    keyframes: Annotated[list[Keyframe], Strict(False)] = Field(
+        default_factory=list, description="overrides the velocities"
+    )
 
     @model_validator(mode="after")
     def _sorted(self):
@@ -280,8 +359,8 @@ class _ColliderBase(_Strict):
 
 class MeshCollider(_ColliderBase):
     shape: Literal["mesh"] = "mesh"
-    file: Path
-    scale: float | tuple[PositiveFloat, PositiveFloat, PositiveFloat] = 1.0
+    file: FilePath
+    scale: float | Triple = 1.0
 
     _positive_scale = field_validator("scale")(MeshBody._positive_scale.__func__)
 
@@ -290,13 +369,13 @@ class SheetCollider(_ColliderBase):
     """Zero-thickness rectangle, normal +y before rotation."""
 
     shape: Literal["sheet"] = "sheet"
-    size: tuple[PositiveFloat, PositiveFloat] = (1.0, 1.0)
+    size: Pair = (1.0, 1.0)
     resolution: int | None = Field(None, ge=1, le=2000, description="quads per side (2 triangles each)")
 
 
 class ThinBoxCollider(_ColliderBase):
     shape: Literal["thin_box"] = "thin_box"
-    size: tuple[PositiveFloat, PositiveFloat, PositiveFloat]
+    size: Triple
 
 
 class BladeCollider(_ColliderBase):
@@ -310,7 +389,7 @@ class BladeCollider(_ColliderBase):
 
 class CrossedPlatesCollider(_ColliderBase):
     shape: Literal["crossed_plates"] = "crossed_plates"
-    size: tuple[PositiveFloat, PositiveFloat] = (0.4, 0.2)
+    size: Pair = (0.4, 0.2)
     thickness: float = Field(0.0, ge=0)
 
 
@@ -319,8 +398,15 @@ class LetterPanelCollider(_ColliderBase):
 
     shape: Literal["letter_panel"] = "letter_panel"
     text: str = Field("ABC", min_length=1)
-    size: tuple[PositiveFloat, PositiveFloat] = (0.6, 0.3)
+    size: Pair = (0.6, 0.3)
     thickness: float = Field(0.0, ge=0)
+
+    @field_validator("text")
+    @classmethod
+    def _visible(cls, text: str) -> str:
+        if not text.strip():
+            raise ValueError("must contain at least one visible character, got only blanks")
+        return text
 
 
 class HourglassCollider(_ColliderBase):
@@ -380,12 +466,12 @@ class Scene(_Strict):
     name: str = "scene"
     description: str = Field("", description="one line shown by `abmpm scenes`")
     simulation: SimulationSettings = SimulationSettings()
-    materials: list[Material] = Field(min_length=1)
-    bodies: list[Body] = Field(min_length=1)
-    colliders: list[Collider] = Field(default_factory=list)
+    materials: Annotated[list[Material], Strict(False)] = Field(min_length=1)
+    bodies: Annotated[list[Body], Strict(False)] = Field(min_length=1)
+    colliders: Annotated[list[Collider], Strict(False)] = Field(default_factory=list)
     output: Output = Output()
     # Folder that relative paths (mesh files) resolve against; set by the TOML loader.
-    base_dir: Path | None = Field(None, exclude=True)
+    base_dir: FilePath | None = Field(None, exclude=True)
 
     @model_validator(mode="after")
     def _references(self):
@@ -399,6 +485,14 @@ class Scene(_Strict):
                     f"bodies[{i}].material: unknown material {b.material!r} (known: {', '.join(names)})"
                 )
         return self
+
+    def check_feasible(self, mode: str | None = None, device: str | None = None) -> None:
+        """Refuse (SceneError naming the key) a scene that cannot run: its grid or
+        particles do not fit in memory, or it cannot be time-stepped. See
+        :mod:`abmpm.scene.checks`; nothing is allocated."""
+        from abmpm.scene.checks import check_feasible
+
+        check_feasible(self, mode, device)
 
     def material_index(self, name: str) -> int:
         return [m.name for m in self.materials].index(name)
