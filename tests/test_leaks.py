@@ -338,7 +338,7 @@ def test_split_particles_stay_on_their_side(case, tmp_path):
         crossing = PanelCrossing(collider_mesh(spec), spec.center, TILT)
     else:
         spec, body, gravity, side_of = _case(kind, side, 15.0, "reversed", tmp_path)
-    worst, steps, n, split = run_watched(spec, body, gravity, side_of, seconds=0.25, mode="adaptive",
+    worst, steps, n, split = run_watched(spec, body, gravity, side_of, seconds=0.15, mode="adaptive",
                                          crossing=crossing)
     assert split > 0  # the case splits particles near the surface
     assert worst == 0, f"{worst} of {n} particles on the wrong side (after each of {steps} steps)"

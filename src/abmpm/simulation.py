@@ -34,8 +34,8 @@ SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory cohe
 # fastest particle moves ~1000x the material's wave speed.
 MIN_DT_FRACTION = 1.0e-3
 # How far the sound speed of compressed fluid may rise before the time step follows
-# it (see Simulation.cfl_dt): weak compression (J > ~0.87 for gamma = 7) costs no steps.
-STIFFENING_SLACK = 1.5
+# it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
+STIFFENING_SLACK = 2.0
 
 _warp_ready = False
 
@@ -195,7 +195,7 @@ class Simulation:
         particle, capped by max_dt. Where a fluid is compressed its sound speed is
         ``stiffening`` times the speed at rest; up to STIFFENING_SLACK of that is taken
         from the margin of the CFL number (the effective CFL number there stays below
-        cfl * STIFFENING_SLACK = 0.6 by default), beyond it the step shrinks."""
+        cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks."""
         st = self.scene.simulation
         c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
         return min(st.max_dt, st.cfl * self.finest_active_dx / (c + max_speed))
