@@ -65,7 +65,13 @@ def choose_device(requested: str | None) -> str:
     if requested.startswith("cuda"):
         if not has_cuda:
             raise AbmpmError(f"device {requested!r} requested but no CUDA device is available (use 'cpu')")
-        return "cuda:0" if requested == "cuda" else requested
+        if requested == "cuda":
+            return "cuda:0"
+        index = requested[len("cuda:"):]
+        count = wp.get_cuda_device_count()
+        if not requested.startswith("cuda:") or not index.isdigit() or int(index) >= count:
+            raise AbmpmError(f"unknown device {requested!r}: this machine has cuda:0 to cuda:{count - 1}")
+        return requested
     raise AbmpmError(f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')")
 
 
