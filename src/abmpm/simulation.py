@@ -40,6 +40,12 @@ STIFFENING_SLACK = 2.0
 _warp_ready = False
 
 
+def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float) -> float:
+    """dt = min(max_dt, cfl dx / (wave speed + particle speed)): a signal crosses at
+    most ``cfl`` of a cell per step."""
+    return min(max_dt, cfl * dx / signal_speed)
+
+
 def init_warp() -> None:
     global _warp_ready
     if not _warp_ready:
@@ -204,7 +210,7 @@ class Simulation:
         cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks."""
         st = self.scene.simulation
         c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
-        return min(st.max_dt, st.cfl * self.finest_active_dx / (c + max_speed))
+        return cfl_time_step(st.cfl, st.max_dt, self.finest_active_dx, c + max_speed)
 
     def _choose_dt(self, signal: tuple[float, float]) -> None:
         """At a frame start: the CFL step, shortened so that a whole number of equal
@@ -218,15 +224,13 @@ class Simulation:
         self._left = max(1, math.ceil(rest / dt_max - 1e-9))
         self.dt = rest / self._left
 
-    def _follow_signal(self, signal: tuple[float, float]) -> None:
-        """After every substep: the fastest particle of that step bounds the next one
-        (an impact can multiply speeds within a frame). The rest of the frame is
-        re-split only when the current step has become too long, so a frame with
-        steady speeds keeps equal substeps."""
+    def _checked_dt(self, signal: tuple[float, float]) -> float:
+        """The CFL step for the last substep's signal (fastest particle, fluid
+        stiffening); stops the run if a velocity is not finite or the step has
+        collapsed."""
         max_speed, stiffening = signal
         if not (math.isfinite(max_speed) and math.isfinite(stiffening)) or max_speed >= 1.0e29:
             self._blow_up("a particle velocity became NaN/inf")
-        self._signal = signal
         dt_max = self.cfl_dt(*signal)
         if dt_max < self._min_dt:
             self._blow_up(
@@ -235,9 +239,7 @@ class Simulation:
                 f"({MIN_DT_FRACTION:g} of the step at rest). Lower the impact speed, the "
                 f"collider separation or the stiffness, or refine less"
             )
-        if self.dt > dt_max * (1.0 + 1e-6):
-            self._split_rest(self.frame_dt - self._t_frame, dt_max)
-            self.substeps = self._taken + self._left
+        return dt_max
 
     def _blow_up(self, why: str) -> None:
         raise SimulationBlowUp(
@@ -281,18 +283,25 @@ class Simulation:
 
     def step(self) -> None:
         """One substep of length ``self.dt``; its fastest particle sets the next
-        substep's length (CFL); frame bookkeeping when a frame completes."""
+        substep's length (CFL); frame bookkeeping when a frame completes.
+
+        An impact can multiply speeds within a frame, so the rest of the frame is
+        re-cut whenever the current step has become too long; a frame with steady
+        speeds keeps equal substeps."""
         self.solver.step(self._state, self.dt, self.time)
         self.steps += 1
         self._taken += 1
         self._left -= 1
+        self._t_frame += self.dt
+        self._signal = self.solver.last_signal()
+        dt_max = self._checked_dt(self._signal)
         if self._left == 0:
             self._t_frame = 0.0
             self._taken = 0
             self._end_frame()
-        else:
-            self._t_frame += self.dt
-            self._follow_signal(self.solver.last_signal())
+        elif self.dt > dt_max * (1.0 + 1e-6):
+            self._split_rest(self.frame_dt - self._t_frame, dt_max)
+            self.substeps = self._taken + self._left
 
     def advance(self, seconds: float | None = None, frames: int | None = None, callback=None) -> None:
         """Run whole frames, or a duration in seconds (stopping at the first substep
@@ -321,15 +330,11 @@ class Simulation:
                 f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
-        signal = self.solver.last_signal()
-        if not math.isfinite(signal[0]) or signal[0] >= 1.0e29:
-            self.frame -= 1
-            self._blow_up("a particle velocity became NaN/inf")
         diag = self._diagnostics(snap)
         self._last_good = snap
         self.history.append(diag)
-        self._choose_dt(signal)
-        self._last_good_signal = signal
+        self._choose_dt(self._signal)  # the step's signal was checked in step()
+        self._last_good_signal = self._signal
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
             self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:

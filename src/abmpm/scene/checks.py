@@ -228,8 +228,10 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         rot = math.hypot(*b.angular_velocity) * diag
         body_speeds.append((lin + rot, i, "velocity" if lin >= rot else "angular_velocity"))
     v, i, vkey = max(body_speeds)
+    from abmpm.simulation import cfl_time_step
+
     try:
-        dt = min(st.max_dt, st.cfl * dx / (c + v))
+        dt = cfl_time_step(st.cfl, st.max_dt, dx, c + v)
         steps = frame_dt / dt
     except (ZeroDivisionError, OverflowError):
         dt, steps = 0.0, math.inf

@@ -84,6 +84,7 @@ class MPMSolver:
         self._cmask = self._no_occ
         # [max speed, max sound-speed stiffening], written by G2P (atomic max)
         self.signal = wp.array([0.0, 1.0], dtype=float, device=device)
+        self._signal_at_rest = wp.array([0.0, 1.0], dtype=float, device=device)
 
     @property
     def grid(self) -> Grid:
@@ -108,7 +109,7 @@ class MPMSolver:
             self._p2g(state, fine, dt)
         for g in self.grids:
             self._grid_update(g, dt)
-        self.signal.assign(np.array([0.0, 1.0], dtype=np.float32))
+        wp.copy(self.signal, self._signal_at_rest)  # no host array per step
         for g in self.grids:
             self._g2p(state, g, dt)
 
