@@ -27,7 +27,7 @@ def split_everything(x, v, C, F, mass, b):
     n = len(x)
     state = ParticleState.from_numpy(
         {"x": x, "v": v, "C": C, "F": F, "mass": mass, "volume": mass / 1000.0}, "cpu")
-    solver.next_id = n
+    solver.reserve_ids(n)
     solver.set_region(np.ones(tuple(d - 1 for d in solver.grid.dims), dtype=bool), state)
     return state.numpy()
 

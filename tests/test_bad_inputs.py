@@ -476,13 +476,13 @@ def test_memory_estimate_formula():
     assert finest["particles"] == pytest.approx(8 * est["particles"])
 
 
-def test_memory_check_counts_colliders_colour_field():
+def test_memory_check_counts_colliders_color_field():
     from abmpm.scene.loader import scene_from_dict
     import tomllib
 
     plain = checks.memory_estimate(scene_from_dict(tomllib.loads(GOOD)))
     with_sheet = checks.memory_estimate(scene_from_dict(tomllib.loads(GOOD + SHEET)))
-    assert with_sheet["grid_bytes"] == plain["grid_nodes"] * (checks.GRID_NODE_BYTES + checks.COLOUR_NODE_BYTES)
+    assert with_sheet["grid_bytes"] == plain["grid_nodes"] * (checks.GRID_NODE_BYTES + checks.COLOR_NODE_BYTES)
 
 
 # --------------------------------------------------------------------------- command line

@@ -105,7 +105,7 @@ def test_extreme_impacts_complete_or_stop_cleanly(tmp_path, speed, separation):
 def test_collider_scene_in_warp_debug_mode(tmp_path):
     """Warp's debug build checks every array index: a few steps of an adaptive scene
     with a turned-over sheet hit at 15 m/s (P2G/G2P with CPIC on both grids, the split,
-    block activation, colour fields) must not index outside any array."""
+    block activation, color fields) must not index outside any array."""
     text = impact_scene(15.0, duration=0.01).replace(
         "[[materials]]", '[simulation.refinement]\nmode = "adaptive"\n\n[[materials]]'
     ).replace("fps = 20", "fps = 100")

@@ -1,4 +1,4 @@
-"""Procedural collider geometry (abmpm.geometry.colliders)."""
+"""Procedural collider geometry (abmpm.geometry.procedural, glyphs, topology)."""
 
 from __future__ import annotations
 
@@ -6,21 +6,19 @@ import numpy as np
 import pytest
 import trimesh
 
-from abmpm.geometry.colliders import (
+from abmpm.geometry.glyphs import letter_hole_polygons
+from abmpm.geometry.procedural import (
     PROCEDURAL,
     blade,
-    boundary_loops,
     crossed_plates,
     funnel,
     hourglass,
-    is_open,
-    letter_hole_polygons,
     letter_panel,
-    mesh_boundary_edges,
     paddle,
     sheet,
     thin_box,
 )
+from abmpm.geometry.topology import boundary_loops, is_open, mesh_boundary_edges
 from abmpm.geometry.transforms import euler_matrix
 
 CLOSED = {

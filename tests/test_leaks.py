@@ -25,7 +25,6 @@ import trimesh
 from shapely.geometry import LineString, Polygon
 
 import abmpm
-from abmpm.geometry.colliders import letter_hole_polygons
 from abmpm.geometry.placement import collider_mesh
 from abmpm.geometry.transforms import euler_matrix
 from abmpm.scene import model as sm

@@ -26,7 +26,7 @@ def _update(mat: wp.array(dtype=MaterialParams), F: wp.array(dtype=wp.mat33), C:
     for _ in range(steps):
         d = update_deformation(mat[0], f, C[i], pl, dt)
         f = d.F
-        pl = d.plastic
+        pl = d.history
     F_out[i] = f
     plastic_out[i] = pl
 

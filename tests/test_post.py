@@ -176,7 +176,7 @@ def test_plot_energy(tmp_path):
 def test_feature_edges_and_outline():
     import trimesh
 
-    from abmpm.post.render import feature_edges
+    from abmpm.geometry.topology import feature_edges
 
     box = trimesh.creation.box(extents=(1.0, 0.1, 1.0))
     assert len(feature_edges(box.vertices, box.faces)) == 12  # creases only, not the diagonals

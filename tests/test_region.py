@@ -1,6 +1,6 @@
-"""Refined region B_s (abmpm.sim.region): subdivision, kernel density, cells.
+"""Refined region B_s (abmpm.geometry.region): subdivision, kernel density, cells.
 
-Reference readings of the density (module docstring of abmpm.sim.region): one flat
+Reference readings of the density (module docstring of abmpm.geometry.region): one flat
 wall 1.0, a sheet or a closed plate much thinner than h 2.0, the rim of a sheet 2.0.
 Tolerances below state where they come from; "sampling" means the quadrature error
 of area-weighted vertex samples with spacing <= h (measured <= ~1.5% on the
@@ -16,18 +16,18 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from abmpm.geometry import colliders as C
-from abmpm.sim.region import (
+from abmpm.geometry import procedural as C
+from abmpm.geometry.region import (
     RegionParams,
-    catmull_clark,
     cells_from_lambda,
-    densify,
     kde_density,
     kde_on_grid,
     refinement_region,
     surface_samples,
     triangle_samples,
 )
+from abmpm.geometry.subdivision import catmull_clark, densify
+from abmpm.geometry.topology import boundary_loops, is_open
 
 DX = 1.0 / 32.0
 DIMS = (33, 33, 33)  # nodes; the grid spans [0, 1]^3
@@ -170,7 +170,7 @@ def test_zero_thickness_sheet_reads_two_and_is_refined():
 def test_thin_closed_plate_reads_two_and_is_refined():
     h = DX
     plate = C.thin_box(size=(0.5, 0.1 * h, 0.5), center=(0.5, 0.5, 0.5))
-    assert not C.is_open(plate)
+    assert not is_open(plate)
     p, w = surface_samples(plate, h)
     # two faces 0.05 h from the node: 2 exp(-0.05^2 / 2) = 1.9975; 3% for sampling
     assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(2.0, rel=0.03)
@@ -208,7 +208,7 @@ def test_letter_panel_refined_around_every_hole_rim():
     dx = 1.0 / 64.0
     for shift in (0.0, 0.5 * dx):  # panel on a node layer, and halfway between two
         panel = C.letter_panel("ABC", size=(0.8, 0.4), center=(0.5, 0.5, 0.5 + shift))
-        loops = C.boundary_loops(panel)
+        loops = boundary_loops(panel)
         assert len(loops) >= 6  # outline, 3 letters, inner islands
         cells, _ = refinement_region([panel], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0))
         for loop in loops:

@@ -292,7 +292,10 @@ def test_collider_meshes_written_and_drawn(tmp_path):
         np.testing.assert_allclose(v[f], sim.collider_triangles(time=i / 30), atol=1e-6)
     # the sheet shows in the preview: compare with the same frames drawn without it
     from abmpm.post.render import Camera, render
-    from abmpm.runner import PREVIEW_SIZE, _colors, _densities, _radius
+    from abmpm.post.preview import PREVIEW_SIZE
+    from abmpm.post.preview import material_densities as _densities
+    from abmpm.post.preview import particle_colors as _colors
+    from abmpm.post.preview import splat_radius as _radius
 
     f0 = read_particles_ply(out / "frames" / "frame_00000.ply")
     st = scene.simulation

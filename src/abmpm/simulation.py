@@ -18,21 +18,22 @@ import warp as wp
 from scipy.ndimage import binary_dilation
 
 from .errors import AbmpmError, SimulationBlowUp
-from .geometry.placement import collider_mesh
-from .geometry.sampling import particle_volume, sample_body
-from .scene.model import FACES, Scene
+from .geometry.region import refinement_region
+from .inputs import material_rows, max_wave_speed, region_params, rigid_bodies, sample_scene, solver_config
+from .scene.model import Scene
 from .sim.colliders import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
-from .sim.materials import material_params, wave_speed
+from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
-from .sim.region import RegionParams, refinement_region
-from .sim.solver import MPMSolver, SolverConfig
+from .sim.solver import MPMSolver
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
 # A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the
 # fastest particle moves ~1000x the material's wave speed.
 MIN_DT_FRACTION = 1.0e-3
+# particle fields renamed since earlier checkpoints were written
+LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_side", "cbody": "surface_body"}
 # How far the sound speed of compressed fluid may rise before the time step follows
 # it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
 STIFFENING_SLACK = 2.0
@@ -95,7 +96,7 @@ class Particles:
     family: np.ndarray  # id of the parent a split particle came from, else -1
     C: np.ndarray
     F: np.ndarray
-    plastic: np.ndarray
+    history: np.ndarray
     J: np.ndarray  # volume ratio V/V0: det(F) for solids, the tracked J for fluids
 
     def __len__(self) -> int:
@@ -105,39 +106,6 @@ class Particles:
         """The same particles ordered by their stable id (the solver reorders them)."""
         order = np.argsort(self.id, kind="stable")
         return Particles(**{k: getattr(self, k)[order] for k in self.__dataclass_fields__})
-
-
-def skew(w) -> np.ndarray:
-    """Matrix of the cross product w x (.)"""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
-    """Particles of every body, as numpy arrays (deterministic by the scene's seed)."""
-    st = scene.simulation
-    rng = np.random.default_rng(st.seed)
-    parts = []
-    for i, body in enumerate(scene.bodies):
-        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]")
-        n = len(x)
-        mat = scene.materials[scene.material_index(body.material)]
-        vol = particle_volume(st.dx, body.particles_per_cell)
-        w = np.asarray(getattr(body, "angular_velocity", (0.0, 0.0, 0.0)), dtype=np.float64)
-        centre = x.astype(np.float64).mean(axis=0)
-        v = np.asarray(body.velocity, dtype=np.float64) + np.cross(w, x - centre)
-        parts.append(
-            {
-                "x": x.astype(np.float32),
-                "v": v.astype(np.float32),
-                # a rigid spin's velocity gradient is skew(w): start APIC consistent with it
-                "C": np.tile(skew(w).astype(np.float32), (n, 1, 1)),
-                "mass": np.full(n, vol * mat.density, dtype=np.float32),
-                "volume": np.full(n, vol, dtype=np.float32),
-                "material": np.full(n, scene.material_index(body.material), dtype=np.int32),
-                "level": np.zeros(n, dtype=np.int32),
-            }
-        )
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 class Simulation:
@@ -159,28 +127,14 @@ class Simulation:
         self.device = choose_device(device if device is not None else st.device)
         self.frame_dt = 1.0 / st.fps
         self.dx = st.dx  # spacing of the coarsest grid
-        colliders = None
-        if scene.colliders:
-            meshes = [collider_mesh(c, scene.resolve, f"colliders[{i}]") for i, c in enumerate(scene.colliders)]
-            colliders = ColliderSet(meshes, list(scene.colliders), self.device, cpic=st.cpic)
-        used = {b.material for b in scene.bodies}
-        self.wave_speed = max(wave_speed(m) for m in scene.materials if m.name in used)
-        self.solver = MPMSolver(
-            SolverConfig(
-                domain_lo=st.domain_min, domain_hi=st.domain_max, dx=st.dx, gravity=st.gravity,
-                walls={f: st.walls.face(f) for f in FACES},
-                refine_factor=b if self.mode == "adaptive" else None,
-                base_level=1 if self.mode == "finest" else 0,
-            ),
-            [material_params(m) for m in scene.materials],
-            self.device,
-            colliders,
-        )
+        self.colliders = ColliderSet(rigid_bodies(scene), self.device, cpic=st.cpic) if scene.colliders else None
+        self.wave_speed = max_wave_speed(scene)
+        self.solver = MPMSolver(solver_config(scene, self.mode), material_rows(scene), self.device, self.colliders)
         arrays = sample_scene(scene)
         if self.mode == "finest":
             arrays["level"][:] = 1
         self._load_arrays(arrays)
-        self.solver.next_id = self._initial_count = len(arrays["x"])
+        self.solver.reserve_ids(len(arrays["x"]))
         if self.mode == "adaptive":
             self.solver.set_region(self.refinement_cells(), self._state)
         self.frame = 0
@@ -192,7 +146,7 @@ class Simulation:
         self._min_dt = MIN_DT_FRACTION * self.cfl_dt(0.0)
         self._choose_dt((float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()), 1.0))
         self.solver.sort_by_cell(self._state)
-        self.solver.colour_particles(self._state)
+        self.solver.color_particles(self._state)
         self._last_good = self._state.numpy()
         self._last_good_signal = self._signal
         self.history.append(self._diagnostics(self._last_good))
@@ -210,7 +164,7 @@ class Simulation:
         cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks."""
         st = self.scene.simulation
         c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
-        return cfl_time_step(st.cfl, st.max_dt, self.finest_active_dx, c + max_speed)
+        return cfl_time_step(st.cfl, st.max_dt, self.solver.finest_active_dx, c + max_speed)
 
     def _choose_dt(self, signal: tuple[float, float]) -> None:
         """At a frame start: the CFL step, shortened so that a whole number of equal
@@ -247,25 +201,13 @@ class Simulation:
             f"last good frame is {self.history[-1]['frame']}"
         )
 
-    @property
-    def finest_active_dx(self) -> float:
-        """The CFL spacing: dx/b once a fine level is in use, else dx."""
-        r = self.solver.refiner
-        if r is not None and (r.region_cells.any() or self.solver.next_id > self._initial_count):
-            return self.solver.grids[1].dx
-        return self.dx
-
     def refinement_cells(self) -> np.ndarray:
         """Refined coarse cells B_s now: boundary density of the colliders marked for
         refinement (Eqs. 26-27) plus the scene's boxes."""
-        r = self.scene.simulation.refinement
         g = self.solver.grid
-        origin = np.array([g.spec.origin[a] for a in range(3)], dtype=np.float64)
-        params = RegionParams(bandwidth=r.bandwidth, threshold=r.threshold, halo=r.halo, boxes=tuple(r.boxes))
-        c = self.solver.colliders
-        meshes = c.body_meshes() if c is not None else []
-        flags = [spec.refine for spec in self.scene.colliders]
-        cells, _ = refinement_region(meshes, flags, origin, g.dx, np.array(g.dims), params)
+        meshes = self.colliders.body_meshes() if self.colliders is not None else []
+        flags = [c.refine for c in self.scene.colliders]
+        cells, _ = refinement_region(meshes, flags, g.origin, g.dx, np.array(g.dims), region_params(self.scene))
         return cells
 
     @property
@@ -345,12 +287,10 @@ class Simulation:
     def _merge(self, snap: dict[str, np.ndarray]) -> None:
         """Merge families that left the region (by the margin) back into level-0 particles."""
         r = self.scene.simulation.refinement
-        region = self.solver.refiner.region_cells
+        region = self.solver.region
         if r.merge_margin:
             region = binary_dilation(region, iterations=r.merge_margin)
-        g = self.solver.grid
-        origin = np.array([g.spec.origin[a] for a in range(3)])
-        cell = np.clip(((snap["x"] - origin) / g.dx).astype(int), 0, np.array(region.shape) - 1)
+        cell = np.clip(((snap["x"] - self.solver.grid_origin) / self.dx).astype(int), 0, np.array(region.shape) - 1)
         keep_fine = region[cell[:, 0], cell[:, 1], cell[:, 2]]
         merged, n = merge_families(snap, keep_fine, r.factor)
         if n:
@@ -366,42 +306,40 @@ class Simulation:
 
     @property
     def _level_dx(self) -> dict[int, float]:
-        return {g.level: g.dx for g in self.solver.grids}
+        return self.solver.level_spacings
 
     def particles(self) -> Particles:
         return self._particles(self._state.numpy())
 
     def _particles(self, arrays: dict[str, np.ndarray]) -> Particles:
-        fluid = np.array([m.model == "fluid" for m in self.scene.materials])[arrays["material"]]
+        # models without F (fluid) keep their volume ratio J in ``history``
+        j_in_history = np.array([not uses_deformation_gradient(m.model) for m in self.scene.materials])
+        j_in_history = j_in_history[arrays["material"]]
         J = np.linalg.det(arrays["F"].astype(np.float64)).astype(np.float32)
-        J[fluid] = arrays["plastic"][fluid]
+        J[j_in_history] = arrays["history"][j_in_history]
         fields = {k: arrays[k] for k in Particles.__dataclass_fields__ if k != "J"}
         return Particles(J=J, **fields)
 
     def collider_triangles(self, time: float | None = None) -> np.ndarray:
         """(M, 3, 3) world-space collider triangles at ``time`` (default: now); empty
         without colliders. For rendering and export."""
-        c = self.solver.colliders
-        if c is None:
+        if self.colliders is None:
             return np.zeros((0, 3, 3))
-        return c.triangles(self.time if time is None else time)
+        return self.colliders.triangles(self.time if time is None else time)
 
     def refined_region(self) -> dict | None:
         """The refined coarse cells now (adaptive mode): ``cells`` (bool, one per coarse
         cell), ``origin`` (corner of cell (0,0,0)) and ``dx``; None in other modes."""
-        r = self.solver.refiner
-        if r is None:
+        cells = self.solver.region
+        if cells is None:
             return None
-        g = self.solver.grid
-        return {"cells": r.region_cells.copy(), "origin": np.array([g.spec.origin[a] for a in range(3)]),
-                "dx": g.dx}
+        return {"cells": cells, "origin": self.solver.grid_origin, "dx": self.dx}
 
     def collider_faces(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(vertices at the current time, faces) of all colliders, or None."""
-        c = self.solver.colliders
-        if c is None:
+        if self.colliders is None:
             return None
-        return c.vertices(self.time), c.faces
+        return self.colliders.vertices(self.time), self.colliders.faces
 
     def diagnostics(self) -> dict:
         """Mass, momentum, angular momentum, kinetic energy, max speed, count, now."""
@@ -446,6 +384,7 @@ class Simulation:
         return arrays, meta
 
     def load_state_dict(self, arrays: dict[str, np.ndarray], meta: dict) -> None:
+        arrays = {LEGACY_FIELDS.get(k, k): a for k, a in arrays.items()}
         missing = [k for k in DYNAMIC + STATIC if k not in arrays]
         if missing:
             raise AbmpmError(f"checkpoint lacks particle fields: {', '.join(missing)}")
@@ -461,7 +400,7 @@ class Simulation:
             self.dt, self.substeps = float(meta["dt"]), int(meta["substeps"])
             self._left, self._signal = self.substeps, (0.0, 1.0)
         self._last_good_signal = self._signal
-        self.solver.next_id = int(meta.get("next_id", self.solver.next_id))
+        self.solver.reserve_ids(int(meta.get("next_id", self.solver.next_id)))
         self.solver.reset_step_count(self.steps)
         self.solver.adopt(self._state)
         self._last_good = self._state.numpy()

@@ -157,7 +157,7 @@ def time_collider_overhead(device: str, seconds: float) -> dict:
             sim = Simulation(scene, device=device)
             sps, _ = time_simulation(sim, seconds)
             row[name] = {"steps_per_s": round(sps, 2), "particles": sim.particle_count,
-                         "triangles": sim.solver.colliders.triangle_count if sim.solver.colliders else 0}
+                         "triangles": sim.colliders.triangle_count if sim.colliders else 0}
         row["ratio"] = round(row["with"]["steps_per_s"] / row["without"]["steps_per_s"], 3)
         res[layout] = row
     return res

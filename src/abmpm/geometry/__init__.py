@@ -1,11 +1,24 @@
-"""Geometry: shapes, mesh files and particle sampling of scene bodies.
+"""Geometry: host-side (numpy/scipy/trimesh) mesh work for the scene and the solver.
 
 ``sample_body`` turns a scene body into particle positions on a lattice aligned to
-the simulation domain; the other functions are its building blocks, exported for the
-preview, the colliders and the tests.
+the simulation domain; the other functions exported here are its building blocks
+(and ``place``, for colliders), used by the preview, the colliders and the tests.
+Among the submodules:
+
+* :mod:`~abmpm.geometry.meshes`: mesh files, ``transform_mesh`` and ``place``
+  (the one placement of every collider shape);
+* :mod:`~abmpm.geometry.procedural`: the procedural collider shapes and
+  ``PROCEDURAL``, their table by scene name; :mod:`~abmpm.geometry.glyphs`: the
+  letter panel's glyph outlines and triangulation;
+  :mod:`~abmpm.geometry.placement`: scene collider -> world-space mesh;
+* :mod:`~abmpm.geometry.topology`: edge adjacency, boundary edges and loops,
+  feature edges;
+* :mod:`~abmpm.geometry.subdivision` and :mod:`~abmpm.geometry.region`: the refined
+  region B_s (Catmull-Clark, densification, kernel density, cells), handed to the
+  solver as a boolean array of coarse cells.
 """
 
-from abmpm.geometry.meshes import load_mesh, require_closed, transform_mesh
+from abmpm.geometry.meshes import load_mesh, place, require_closed, transform_mesh
 from abmpm.geometry.sampling import (
     inside_mesh,
     jitter_points,
@@ -41,6 +54,7 @@ __all__ = [
     "lattice_spacing",
     "load_mesh",
     "particle_volume",
+    "place",
     "require_closed",
     "sample_body",
     "shape_bounds_and_inside",

@@ -1,4 +1,4 @@
-"""Loading and placing triangle meshes given by the user.
+"""Loading and placing triangle meshes (mesh files given by the user, collider shapes).
 
 A mesh file is user input: every way it can be wrong (missing, unreadable, empty,
 open) raises :class:`MeshError` with a message that starts with the file's path, so
@@ -14,6 +14,7 @@ import numpy as np
 import trimesh
 
 from abmpm.errors import MeshError
+from abmpm.geometry.arguments import vec3
 from abmpm.geometry.transforms import euler_matrix
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
@@ -120,4 +121,17 @@ def transform_mesh(mesh: trimesh.Trimesh, scale=1.0, rotation_deg=(0.0, 0.0, 0.0
     out.vertices = (np.asarray(mesh.vertices, dtype=np.float64) * s) @ euler_matrix(rotation_deg).T + np.asarray(
         translation, dtype=np.float64
     )
+    return out
+
+
+def place(mesh: trimesh.Trimesh, center, rotation_deg) -> trimesh.Trimesh:
+    """A copy of ``mesh`` rotated about its own origin, then moved to ``center``:
+    ``world = center + R @ local`` with ``R = euler_matrix(rotation_deg)``.
+
+    Every collider shape (procedural or from a file) is placed with this function.
+    ``center`` and ``rotation_deg`` must be three finite numbers each (else
+    ``ValueError``); the vertices of the result are C-contiguous float64.
+    """
+    out = transform_mesh(mesh, 1.0, vec3(rotation_deg, "rotation_deg"), vec3(center, "center"))
+    out.vertices = np.ascontiguousarray(out.vertices, dtype=np.float64)
     return out

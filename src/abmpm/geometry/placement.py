@@ -2,48 +2,30 @@
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import numpy as np
 import trimesh
 
 from ..errors import SceneError
-from . import colliders as procedural
-from .meshes import MAX_COORDINATE, load_mesh
-from .transforms import euler_matrix
+from .meshes import MAX_COORDINATE, load_mesh, place
+from .procedural import PROCEDURAL
 
-# scene shape name -> (generator, the scene fields passed to it)
-_PROCEDURAL = {
-    "sheet": (procedural.sheet, ("size", "resolution")),
-    "thin_box": (procedural.thin_box, ("size",)),
-    "blade": (procedural.blade, ("length", "height", "thickness")),
-    "crossed_plates": (procedural.crossed_plates, ("size", "thickness")),
-    "letter_panel": (procedural.letter_panel, ("text", "size", "thickness")),
-    "hourglass": (procedural.hourglass, ("height", "radius", "neck_radius", "wall_thickness")),
-    "funnel": (procedural.funnel, ("top_radius", "pipe_radius", "cone_height", "pipe_length")),
-    "paddle": (procedural.paddle, ("length", "height")),
-}
+# builder parameters that are not shape fields: the builder is called at the origin
+# and the mesh is placed afterwards from the collider's center and rotation
+_POSE_PARAMETERS = ("center", "rotation_deg")
 
 
-def place(mesh: trimesh.Trimesh, center, rotation_deg) -> trimesh.Trimesh:
-    """Rotate about the origin (the shape's own centre), then move to ``center``."""
-    m = mesh.copy()
-    T = np.eye(4)
-    T[:3, :3] = euler_matrix(rotation_deg)
-    T[:3, 3] = center
-    m.apply_transform(T)
-    return m
-
-
-def collider_mesh(spec, resolve=lambda p: p, where: str = "colliders[0]") -> trimesh.Trimesh:
+def collider_mesh(collider, resolve=lambda p: p, where: str = "colliders[0]") -> trimesh.Trimesh:
     """World-space rest-pose mesh of one scene collider (open meshes are fine)."""
-    size = "scale" if spec.shape == "mesh" else "size"
+    size = "scale" if collider.shape == "mesh" else "size"
     try:
         with warnings.catch_warnings():
             # overflow or an invalid cast while building or placing the shape means
             # absurd dimensions: an error, not a warning and a broken mesh
             warnings.simplefilter("error", RuntimeWarning)
-            mesh = _build(spec, resolve, where)
+            mesh = _build(collider, resolve, where)
     except RuntimeWarning as exc:
         raise SceneError(f"{where}: the collider cannot be built ({exc}); check its {size} and center") from None
     v = np.asarray(mesh.vertices, dtype=np.float64)
@@ -56,18 +38,29 @@ def collider_mesh(spec, resolve=lambda p: p, where: str = "colliders[0]") -> tri
     return mesh
 
 
-def _build(spec, resolve, where: str) -> trimesh.Trimesh:
-    if spec.shape == "mesh":
-        mesh = load_mesh(resolve(spec.file), where=f"{where}.file")
-        scale = np.broadcast_to(np.asarray(spec.scale, dtype=np.float64), (3,))
+def _shape_fields(make, collider) -> dict:
+    """The builder's keyword arguments from the collider description: each parameter
+    of ``make`` (except the pose) that the description has a field for. Parameters the
+    scene format does not expose (``segments``, ``font``, ...) keep their defaults."""
+    names = [k for k in inspect.signature(make).parameters if k not in _POSE_PARAMETERS]
+    return {k: getattr(collider, k) for k in names if hasattr(collider, k)}
+
+
+def _build(collider, resolve, where: str) -> trimesh.Trimesh:
+    if collider.shape == "mesh":
+        mesh = load_mesh(resolve(collider.file), where=f"{where}.file")
+        scale = np.broadcast_to(np.asarray(collider.scale, dtype=np.float64), (3,))
         mesh = mesh.copy()
         if not np.all(scale == 1.0):
             mesh.apply_transform(np.diag([*scale, 1.0]))
     else:
-        make, keys = _PROCEDURAL[spec.shape]
+        make = PROCEDURAL[collider.shape]
         try:
-            mesh = make(**{k: getattr(spec, k) for k in keys})
+            mesh = make(**_shape_fields(make, collider))
         except ValueError as exc:  # e.g. an hourglass neck wider than its bulbs
-            key = f"{where}.text" if spec.shape == "letter_panel" and "text" in str(exc) else where
+            key = f"{where}.text" if collider.shape == "letter_panel" and "text" in str(exc) else where
             raise SceneError(f"{key}: {exc}") from None
-    return place(mesh, spec.center, spec.rotation)
+    try:
+        return place(mesh, collider.center, collider.rotation)
+    except ValueError as exc:  # a center or rotation that is not three finite numbers
+        raise SceneError(f"{where}: {exc}") from None

@@ -1,6 +1,9 @@
-"""Output writers: PLY particles, checkpoints, JSON summaries, USD points.
+"""Output files: PLY particles, checkpoints, JSON summaries, USD points.
 
 These modules know nothing of the solver; they take numpy arrays and dicts.
+:mod:`abmpm.io.outdir` is the layout of a run's output folder,
+:mod:`abmpm.io.writers` the writers that turn a running Simulation (its public
+interface only) into those files, one per kind of output.
 """
 
 from abmpm.io.atomic import atomic_write

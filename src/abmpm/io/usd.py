@@ -54,7 +54,7 @@ class UsdPointsWriter:
         widths: float | np.ndarray,
         colors: np.ndarray | None = None,
     ) -> None:
-        """Add a time sample of positions (N,3), widths and optional RGB colours (N,3)."""
+        """Add a time sample of positions (N,3), widths and optional RGB colors (N,3)."""
         if self._closed:
             raise OutputError(f"{self.path}: USD writer already closed")
         Vt = self._Vt

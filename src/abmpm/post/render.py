@@ -4,16 +4,19 @@ Conventions: world y is up; images are ``uint8 (H, W, 3)`` with row 0 at the top
 Particles are drawn as shaded sphere impostors (Lambert + ambient) with a z-buffer,
 the domain box as thin dark depth-tested edges, and optional collider triangles as
 flat-shaded semi-transparent grey surfaces under the depth test, outlined by their
-feature edges (rims, holes, creases: see :func:`feature_edges`).
+feature edges (rims, holes, creases: see :func:`abmpm.geometry.topology.feature_edges`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
+
+from abmpm.post.camera import Camera
+
+__all__ = ["Camera", "region_outline", "render"]
 
 _NEAR = 1e-4
 # direction *towards* the light, in camera space (x right, y up, z towards the viewer):
@@ -26,119 +29,9 @@ _MAX_FRAGMENTS = 4_000_000  # fragments per chunk (memory bound)
 _MAX_SPLAT_RADIUS_PX = 48
 
 
-def _normalize(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v)
-    if n == 0.0:
-        raise ValueError("zero-length vector")
-    return v / n
-
-
-@dataclass
-class Camera:
-    """Pinhole camera. ``fov_deg`` is the vertical field of view."""
-
-    eye: tuple[float, float, float] | np.ndarray
-    target: tuple[float, float, float] | np.ndarray
-    up: tuple[float, float, float] | np.ndarray = (0.0, 1.0, 0.0)
-    fov_deg: float = 40.0
-    width: int = 640
-    height: int = 480
-
-    # ------------------------------------------------------------------ geometry
-    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Camera axes in world space: right, up, back (back points towards the viewer)."""
-        eye = np.asarray(self.eye, dtype=np.float64)
-        fwd = _normalize(np.asarray(self.target, dtype=np.float64) - eye)
-        up = np.asarray(self.up, dtype=np.float64)
-        right = np.cross(fwd, up)
-        if np.linalg.norm(right) < 1e-9:  # looking along `up`: pick any perpendicular
-            alt = np.array([0.0, 0.0, 1.0]) if abs(fwd[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-            right = np.cross(fwd, alt)
-        right = _normalize(right)
-        cup = np.cross(right, fwd)
-        return right, cup, -fwd
-
-    @property
-    def focal_px(self) -> float:
-        """Focal length in pixels."""
-        return 0.5 * self.height / math.tan(math.radians(self.fov_deg) * 0.5)
-
-    def to_camera(self, p: np.ndarray) -> np.ndarray:
-        """World points (..., 3) -> camera coords (..., 3): x right, y up, depth (>0 in front)."""
-        right, cup, back = self.basis()
-        d = np.asarray(p, dtype=np.float64) - np.asarray(self.eye, dtype=np.float64)
-        return np.stack([d @ right, d @ cup, -(d @ back)], axis=-1)
-
-    def project(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World points -> (column, row, depth) in pixels (row 0 at the top)."""
-        c = self.to_camera(p)
-        z = c[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = self.focal_px / z
-        col = 0.5 * self.width + c[..., 0] * f
-        row = 0.5 * self.height - c[..., 1] * f
-        return col, row, z
-
-    # ------------------------------------------------------------------ framing
-    @classmethod
-    def framing_box(
-        cls,
-        lo: Sequence[float],
-        hi: Sequence[float],
-        width: int = 640,
-        height: int = 480,
-        *,
-        azimuth_deg: float = 35.0,
-        elevation_deg: float = 25.0,
-        fov_deg: float = 35.0,
-        margin: float = 0.92,
-    ) -> "Camera":
-        """A 3/4 view from the front-right-above (+z is front, +x right, +y up) that
-        fits all eight corners of the box ``[lo, hi]`` in the image.
-
-        ``margin`` < 1 leaves a border (fraction of the half-extent that is used).
-        """
-        lo = np.asarray(lo, dtype=np.float64)
-        hi = np.asarray(hi, dtype=np.float64)
-        center = 0.5 * (lo + hi)
-        az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-        d = np.array([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
-        fwd = -d
-        right = _normalize(np.cross(fwd, [0.0, 1.0, 0.0]))
-        cup = np.cross(right, fwd)
-        tan_v = math.tan(math.radians(fov_deg) * 0.5) * margin
-        tan_h = tan_v * width / height
-        corners = np.array(
-            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-        )
-        target = center.copy()
-        for _ in range(4):
-            rel = corners - target
-            a = rel @ right
-            b = rel @ cup
-            e = rel @ fwd  # depth offset of a corner relative to the target
-            # at distance D a corner has depth D + e; need |a| <= tan_h (D + e), |b| <= tan_v (D + e)
-            dist = float(np.max(np.maximum(np.abs(a) / tan_h - e, np.abs(b) / tan_v - e)))
-            dist = max(dist, float(np.max(-e)) + 1e-3, 1e-3)
-            # re-centre: move the target (and eye) sideways so the projected box is centred
-            u = a / (dist + e)
-            v = b / (dist + e)
-            du = 0.5 * (u.max() + u.min())
-            dv = 0.5 * (v.max() + v.min())
-            if abs(du) < 1e-4 and abs(dv) < 1e-4:
-                break
-            target = target + (du * right + dv * cup) * dist
-        eye = target + d * dist
-        center = target
-        return cls(
-            eye=tuple(eye), target=tuple(center), up=(0.0, 1.0, 0.0),
-            fov_deg=fov_deg, width=int(width), height=int(height),
-        )
-
-
 # ---------------------------------------------------------------------- helpers
 def _as_colors(colors, n: int) -> np.ndarray:
-    """Colours -> float32 (n, 3) in [0, 1]. Accepts (3,), (n,3), (n,4), uint8 or float."""
+    """Colors -> float32 (n, 3) in [0, 1]. Accepts (3,), (n,3), (n,4), uint8 or float."""
     if colors is None:
         return np.tile(np.array([[0.25, 0.5, 0.85]], dtype=np.float32), (n, 1))
     c = np.asarray(colors)
@@ -370,36 +263,6 @@ def _draw_box(
     _draw_lines(camera, segments, rgb, depth, color, bias=1e-3 * extent)
 
 
-def feature_edges(vertices: np.ndarray, faces: np.ndarray, angle_deg: float = 35.0) -> np.ndarray:
-    """Edges worth outlining on a collider mesh, as (K, 2) vertex index pairs: boundary
-    edges (rims of sheets, hole outlines: used by one face) and creases (two faces
-    whose normals differ by more than ``angle_deg``; the corners of a thin box).
-
-    Rigid motion keeps the angles, so the pairs of one pose serve every frame.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(f) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    face_of = np.tile(np.arange(len(f)), 3)
-    order = np.lexsort((e[:, 1], e[:, 0]))
-    e, face_of = e[order], face_of[order]
-    new = np.ones(len(e), dtype=bool)
-    new[1:] = np.any(e[1:] != e[:-1], axis=1)
-    start = np.nonzero(new)[0]
-    count = np.diff(np.append(start, len(e)))
-    keep = count == 1  # boundary
-    pair = count == 2
-    fa, fb = face_of[start[pair]], face_of[start[pair] + 1]
-    # unsigned angle: open sheets and revolved surfaces may be wound either way
-    crease = np.abs(np.einsum("ij,ij->i", n[fa], n[fb])) < math.cos(math.radians(angle_deg))
-    keep[np.nonzero(pair)[0][crease]] = True
-    return e[start[keep]]
-
-
 def render(
     x: np.ndarray,
     colors=None,
@@ -419,7 +282,7 @@ def render(
 
     Args:
         x: (N,3) particle positions (world, y up).
-        colors: (N,3)/(N,4) float in [0,1] or uint8, a single (3,) colour, or None.
+        colors: (N,3)/(N,4) float in [0,1] or uint8, a single (3,) color, or None.
         camera: a :class:`Camera`; default frames ``box`` (or the particles' bounds).
         radius: world-space particle radius, scalar or (N,).
         box: ``(lo, hi)`` of the domain, drawn as thin dark edges; None for no box.
@@ -501,84 +364,3 @@ def region_outline(cells: np.ndarray, origin, dx: float) -> np.ndarray:
         segs.append(np.stack([start, end], axis=1))
     seg = np.concatenate(segs) if segs else np.zeros((0, 2, 3))
     return np.asarray(origin, dtype=np.float64) + seg * dx
-
-
-# ---------------------------------------------------------------------- colours
-_MODEL_COLORS = {
-    "fluid": (0.22, 0.48, 0.86),  # water blue
-    "water": (0.22, 0.48, 0.86),
-    "elastic": (0.90, 0.36, 0.46),  # jelly red/pink
-    "jelly": (0.90, 0.36, 0.46),
-    "viscoelastic": (0.93, 0.55, 0.70),  # pink
-    "sand": (0.84, 0.71, 0.48),  # tan
-    "snow": (0.95, 0.96, 0.98),  # white
-}
-# distinct palette by material index (when the model of each material is not given)
-PALETTE = np.array(
-    [
-        (0.22, 0.48, 0.86),  # water blue
-        (0.90, 0.36, 0.46),  # jelly red/pink
-        (0.84, 0.71, 0.48),  # sand tan
-        (0.95, 0.96, 0.98),  # snow white
-        (0.35, 0.70, 0.45),  # green
-        (0.60, 0.42, 0.78),  # purple
-        (0.96, 0.62, 0.25),  # orange
-        (0.25, 0.72, 0.74),  # teal
-    ],
-    dtype=np.float32,
-)
-
-
-def colors_by_material(
-    material_ids: np.ndarray, models: Sequence[str] | None = None
-) -> np.ndarray:
-    """Per-particle RGB float32 (N,3) from material indices.
-
-    Without ``models`` index i gets ``PALETTE[i % 8]`` (blue, pink-red, tan, white, ...).
-    With ``models`` (the constitutive model name of each material index, e.g.
-    ``["fluid", "sand"]``) the colour follows the model: fluid blue, elastic red/pink,
-    viscoelastic pink, sand tan, snow white; materials sharing a model still differ
-    slightly in brightness.
-    """
-    ids = np.asarray(material_ids).astype(np.int64).ravel()
-    if models is None:
-        table = PALETTE
-    else:
-        table = np.empty((len(models), 3), dtype=np.float32)
-        seen: dict[str, int] = {}
-        for i, m in enumerate(models):
-            key = str(m).lower()
-            base = np.array(_MODEL_COLORS.get(key, PALETTE[i % len(PALETTE)]), dtype=np.float32)
-            k = seen.get(key, 0)
-            seen[key] = k + 1
-            table[i] = np.clip(base * (1.0 - 0.18 * k), 0.0, 1.0) if k else base
-        if table.shape[0] == 0:
-            table = PALETTE
-    return table[np.mod(ids, table.shape[0])]
-
-
-def colors_by_speed(v: np.ndarray, vmax: float | None = None, cmap: str = "viridis") -> np.ndarray:
-    """Per-particle RGB float32 (N,3) from |v| via a matplotlib colormap.
-
-    ``vmax`` defaults to the 99th percentile of the speed (robust to outliers).
-    """
-    from matplotlib import colormaps
-
-    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
-    speed = np.linalg.norm(v, axis=1)
-    if vmax is None:
-        vmax = float(np.percentile(speed, 99)) if speed.size else 1.0
-    vmax = vmax if vmax > 0 else 1.0
-    t = np.clip(speed / vmax, 0.0, 1.0)
-    return colormaps[cmap](t)[:, :3].astype(np.float32)
-
-
-def colors_by_level(level: np.ndarray) -> np.ndarray:
-    """Per-particle RGB float32 (N,3) from the refinement level: 0 blue, 1 white,
-    higher levels orange/red (as in the paper's figures)."""
-    table = np.array(
-        [(0.20, 0.42, 0.85), (0.96, 0.96, 0.97), (0.96, 0.60, 0.25), (0.85, 0.25, 0.25)],
-        dtype=np.float32,
-    )
-    lv = np.clip(np.asarray(level).astype(np.int64).ravel(), 0, table.shape[0] - 1)
-    return table[lv]

@@ -26,10 +26,10 @@ __all__ = ["memory_estimate", "available_memory", "check_feasible", "GRID_NODE_B
 
 # Grid storage per node: momentum (vec3), mass (float), velocity (vec3) as float32.
 GRID_NODE_BYTES = 28
-# Per node with colliders: the colour field (distance float, direction vec3, body int).
-COLOUR_NODE_BYTES = 20
-# Particle state per particle on the device: x, v, cp, cn (vec3), C, F (mat33),
-# plastic, mass, volume (float), cbody, material, level, id, family (int32).
+# Per node with colliders: the color field (distance float, direction vec3, body int).
+COLOR_NODE_BYTES = 20
+# Particle state per particle on the device: x, v, surface_point, surface_side (vec3), C, F (mat33),
+# history, mass, volume (float), surface_body, material, level, id, family (int32).
 PARTICLE_BYTES = 152
 # Nodes a grid has beyond the domain's cells on each axis (GRID_PAD = 3 per side, +1).
 GRID_EXTRA_NODES = 7
@@ -76,7 +76,7 @@ def memory_estimate(scene, mode: str | None = None, load_meshes: bool = True) ->
     """Bytes the simulation of ``scene`` needs at the start, by part.
 
     * grid: ``prod(ceil((max - min) / dx) + 7)`` nodes (dx / factor in finest mode) of
-      28 bytes, plus 20 bytes of collider colour field per node when there are colliders;
+      28 bytes, plus 20 bytes of collider color field per node when there are colliders;
     * particles: each body's bounding box (clipped to the domain) filled at
       ``particles_per_cell`` per cell of the particle lattice (an upper estimate: the
       sampler does build that whole lattice), 152 bytes each. Mesh bodies count as the
@@ -93,7 +93,7 @@ def memory_estimate(scene, mode: str | None = None, load_meshes: bool = True) ->
     for a in range(3):
         cells = (st.domain_max[a] - st.domain_min[a]) / dx
         nodes *= math.ceil(cells - 1e-9) + GRID_EXTRA_NODES if math.isfinite(cells) else math.inf
-    node_bytes = GRID_NODE_BYTES + (COLOUR_NODE_BYTES if scene.colliders else 0)
+    node_bytes = GRID_NODE_BYTES + (COLOR_NODE_BYTES if scene.colliders else 0)
     domain_vol = _clipped_volume(st.domain_min, st.domain_max, st)
     per_body = []
     for i, body in enumerate(scene.bodies):

@@ -12,7 +12,10 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, create_model, field_validator, model_validator
+
+from ..sim.materials import REGISTRY as MATERIAL_MODELS
+from ..sim.materials.base import MaterialModel
 
 # Types are strict (a string is not a number, 1 is not true) except that an integer is
 # a valid float (TOML ``dx = 1``) and containers are lax: a vector may be a TOML list or
@@ -82,7 +85,6 @@ class _Strict(BaseModel):
 
 
 WallType = Literal["sticky", "slip", "separate"]
-FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 class WallFace(_Strict):
@@ -196,51 +198,25 @@ class _MaterialBase(_Strict):
     density: PositiveFloat = 1000.0
 
 
-class Fluid(_MaterialBase):
-    """Weakly compressible fluid: p = K (1/J^gamma - 1)/gamma plus Newtonian viscosity."""
-
-    model: Literal["fluid"] = "fluid"
-    bulk_modulus: PositiveFloat = 2.0e5
-    gamma: float = Field(7.0, ge=1.0, description="Tait exponent of the equation of state")
-    viscosity: float = Field(0.0, ge=0, description="dynamic viscosity, Pa s")
-
-
-class _Solid(_MaterialBase):
-    youngs_modulus: PositiveFloat = 1.0e5
-    poisson_ratio: float = Field(0.3, gt=-1.0, lt=0.5)
+def _material_schema(model: MaterialModel) -> type[_MaterialBase]:
+    """The scene schema of a registered material model, from its declared parameters."""
+    fields: dict = {"model": (Literal[model.name], model.name)}
+    for prm in model.parameters:
+        bounds = {k: getattr(prm, k) for k in ("gt", "ge", "lt", "le") if getattr(prm, k) is not None}
+        fields[prm.name] = (float, Field(prm.default, description=prm.doc, **bounds))
+    cls_name = "".join(part.capitalize() for part in model.name.split("_"))
+    return create_model(cls_name, __base__=_MaterialBase, __doc__=model.doc, __module__=__name__, **fields)
 
 
-class Elastic(_Solid):
-    """Fixed-corotated hyperelastic solid (Stomakhin et al. 2013 without plasticity)."""
+# One schema per registered material model (``abmpm.sim.materials.REGISTRY``).
+MATERIAL_SCHEMAS: dict[str, type[_MaterialBase]] = {m.name: _material_schema(m) for m in MATERIAL_MODELS}
+Fluid = MATERIAL_SCHEMAS["fluid"]
+Elastic = MATERIAL_SCHEMAS["elastic"]
+Viscoelastic = MATERIAL_SCHEMAS["viscoelastic"]
+Sand = MATERIAL_SCHEMAS["sand"]
+Snow = MATERIAL_SCHEMAS["snow"]
 
-    model: Literal["elastic"] = "elastic"
-
-
-class Viscoelastic(_Solid):
-    """Fixed-corotated solid whose deviatoric strain relaxes (Maxwell) plus viscous damping."""
-
-    model: Literal["viscoelastic"] = "viscoelastic"
-    viscosity: float = Field(1.0, ge=0, description="Kelvin-Voigt damping viscosity, Pa s")
-    relaxation_time: PositiveFloat = Field(0.5, description="Maxwell relaxation time of shear strain, s")
-
-
-class Sand(_Solid):
-    """Drucker-Prager elastoplastic sand (Klar et al. 2016), cohesionless."""
-
-    model: Literal["sand"] = "sand"
-    friction_angle: float = Field(30.0, gt=0, lt=90, description="internal friction angle, degrees")
-
-
-class Snow(_Solid):
-    """Snow plasticity (Stomakhin et al. 2013)."""
-
-    model: Literal["snow"] = "snow"
-    critical_compression: float = Field(2.5e-2, gt=0, lt=1)
-    critical_stretch: float = Field(7.5e-3, gt=0)
-    hardening: float = Field(10.0, ge=0)
-
-
-Material = Annotated[Union[Fluid, Elastic, Viscoelastic, Sand, Snow], Field(discriminator="model")]
+Material = Annotated[Union[tuple(MATERIAL_SCHEMAS.values())], Field(discriminator="model")]
 
 
 # --------------------------------------------------------------------------- bodies

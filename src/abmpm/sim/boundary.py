@@ -8,6 +8,8 @@ BOUNDARY_STICKY = wp.constant(0)
 BOUNDARY_SLIP = wp.constant(1)
 BOUNDARY_SEPARATE = wp.constant(2)
 BOUNDARY_IDS = {"sticky": 0, "slip": 1, "separate": 2}
+# the six faces of the box domain, in the order the solver stores their walls
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 @wp.func

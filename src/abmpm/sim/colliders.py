@@ -1,14 +1,14 @@
-"""Thin rigid colliders: colour distance field and compatible particle-in-cell (CPIC).
+"""Thin rigid colliders: color distance field and compatible particle-in-cell (CPIC).
 
 Paper Section 5 (Eqs. 21-25, 28-31), after Hu et al. 2018. All colliders of a
 scene live in one Warp BVH mesh; each face knows its collider ("body").
 
-Colour distance field (on grid nodes, within ``NODE_BAND`` cells of a surface):
+Color distance field (on grid nodes, within ``NODE_BAND`` cells of a surface):
 unsigned distance to the closest triangle (Warp's closest-point query is the
 barycentric projection of Eqs. 28-31 with the edge fallback), the unit direction
 from that closest point to the node, and the body.
 
-Compatibility (our decision, see docs/method.md). The paper colours each node and
+Compatibility (our decision, see docs/method.md). The paper colors each node and
 particle with the side of the surface it lies on (Eq. 21). A sign alone cannot tell
 the two sides of a closed blade thinner than a cell (both read "outside") and
 marks rim regions of open sheets wrongly, so we test sides with tangent
@@ -21,7 +21,7 @@ with c the closest surface point and n the direction from c to the point. This i
 Eq. 21's side test made local; it agrees with it on smooth sheets, separates the
 two faces of a thin closed blade, and keeps both ends of a narrow tube compatible.
 
-No crossing (the guarantee of Eq. 21's kept particle colour): after advection a
+No crossing (the guarantee of Eq. 21's kept particle color): after advection a
 particle near a surface casts a ray along its motion relative to the collider; a
 hit stops it just before the surface on its own side.
 """
@@ -29,19 +29,18 @@ hit stops it just before the surface on its own side.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import trimesh
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
-from scipy.spatial.transform import Rotation, Slerp
 
-from ..geometry.transforms import euler_matrix
 from .boundary import BOUNDARY_IDS, boundary_response
 from .grid import BLOCK_NODES, Grid, GridSpec, node_coords, node_index, node_position
 
-NODE_BAND = 3.5  # cells: nodes this close to a surface get a colour (stencil reach 1.5 sqrt(3) ~ 2.6)
+NODE_BAND = 3.5  # cells: nodes this close to a surface get a color (stencil reach 1.5 sqrt(3) ~ 2.6)
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
 CONTACT_BAND = 1.0  # cells: nodes this close get the collider's boundary condition
 FAR = 1.0e10
@@ -52,7 +51,7 @@ ON_SURFACE = 1.0e-3
 # particle near that surface); otherwise a node lying on a sheet couples both sides
 ON_NODE = 1.0e-2
 # cells: before its crossing test a particle near a surface steps this far back
-# along its colour direction, so the ray never starts on the surface itself (a ray
+# along its color direction, so the ray never starts on the surface itself (a ray
 # from a point on a triangle may miss it, and a hit at t = 0 would freeze it there)
 RAY_BACKOFF = 2.0e-2
 # cells: a particle stopped before a surface stays this far from it (normal distance)
@@ -70,7 +69,7 @@ class ColliderBody:
 
 
 @wp.struct
-class CollisionSpec:
+class ColliderArrays:
     enabled: int
     cpic: int  # 0: plain grid boundary (node contact only), for comparison
     mesh: wp.uint64
@@ -79,8 +78,8 @@ class CollisionSpec:
 
 
 @wp.struct
-class ColourField:
-    """Colour distance field on the nodes of one grid."""
+class ColorField:
+    """Color distance field on the nodes of one grid."""
 
     dist: wp.array(dtype=float)  # flat, indexed like the grid's nodes
     dir: wp.array(dtype=wp.vec3)
@@ -94,9 +93,9 @@ def rigid_velocity(b: ColliderBody, x: wp.vec3):
 
 
 @wp.func
-def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, xi: wp.vec3, n: int, dx: float):
+def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, xi: wp.vec3, n: int, dx: float):
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
-    if cbody < 0 or n < 0:
+    if surface_body < 0 or n < 0:
         return True  # particle far from every surface, or an inactive node
     if f.body[n] < 0:
         return True  # node far from every surface
@@ -104,27 +103,27 @@ def compatible(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField
         return False  # a node on a surface belongs to neither side
     ni = f.dir[n]
     ci = xi - f.dist[n] * ni
-    return not (wp.dot(xi - cp, cn) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
+    return not (wp.dot(xi - surface_point, surface_side) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
 
 
 ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
 
 
 @wp.func
-def compatibility_mask(cp: wp.vec3, cn: wp.vec3, cbody: int, xp: wp.vec3, f: ColourField, g: GridSpec,
+def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, g: GridSpec,
                        base: wp.vec3i, fx: wp.vec3):
     """Bit (9 i + 3 j + k) set when stencil node (i, j, k) is compatible with the particle."""
     # Every stencil node lies within 1.5 dx |n|_1 of x_p along n, so a particle farther
     # than that from its tangent plane has no node behind it: all compatible (exact).
-    reach = 1.5 * g.dx * (wp.abs(cn[0]) + wp.abs(cn[1]) + wp.abs(cn[2]))
-    if wp.dot(xp - cp, cn) > reach + 1.0e-3 * g.dx:
+    reach = 1.5 * g.dx * (wp.abs(surface_side[0]) + wp.abs(surface_side[1]) + wp.abs(surface_side[2]))
+    if wp.dot(xp - surface_point, surface_side) > reach + 1.0e-3 * g.dx:
         return ALL_NODES
     mask = int(0)
     for i in range(3):
         for j in range(3):
             for k in range(3):
                 xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                if compatible(cp, cn, cbody, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
+                if compatible(surface_point, surface_side, surface_body, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
                     mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
@@ -136,26 +135,26 @@ def node_bit(mask: int, i: int, j: int, k: int):
 
 
 @wp.func
-def node_contact(spec: CollisionSpec, f: ColourField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
+def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
     """Boundary condition of the nearest collider on a node within CONTACT_BAND cells."""
     b = f.body[n]
     if b < 0 or f.dist[n] > CONTACT_BAND * g.dx:
         return v
-    body = spec.bodies[b]
+    body = colliders.bodies[b]
     return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)
 
 
 @wp.func
-def boundary_velocity(spec: CollisionSpec, cbody: int, cn: wp.vec3, xp: wp.vec3, vp: wp.vec3):
+def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3):
     """Eq. 23: the velocity an incompatible node lends to particle p."""
-    body = spec.bodies[cbody]
-    return boundary_response(vp, rigid_velocity(body, xp), cn, body.boundary, body.friction, body.separation)
+    body = colliders.bodies[surface_body]
+    return boundary_response(vp, rigid_velocity(body, xp), surface_side, body.boundary, body.friction, body.separation)
 
 
 @wp.struct
-class Colour:
-    cp: wp.vec3  # closest surface point
-    cn: wp.vec3  # unit direction from cp to the particle
+class Color:
+    surface_point: wp.vec3  # closest surface point
+    surface_side: wp.vec3  # unit direction from surface_point to the particle
     body: int  # -1 when farther than PARTICLE_BAND cells
 
 
@@ -171,8 +170,8 @@ def nearest_node(g: GridSpec, x: wp.vec3):
 
 
 @wp.func
-def near_surface(f: ColourField, g: GridSpec, x: wp.vec3):
-    # cheap filter: the particle's nearest node carries a colour
+def near_surface(f: ColorField, g: GridSpec, x: wp.vec3):
+    # cheap filter: the particle's nearest node carries a color
     n = nearest_node(g, x)
     if n < 0:
         return False
@@ -180,7 +179,7 @@ def near_surface(f: ColourField, g: GridSpec, x: wp.vec3):
 
 
 @wp.func
-def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float, side: wp.vec3):
+def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: float, side: wp.vec3):
     """Closest surface point within max_dist (-1 body if none) and the unit direction
     from it to x. For particles a tight bound prunes the BVH search, which is most of
     the cost of a particle near a collider.
@@ -188,22 +187,22 @@ def colour_point(spec: CollisionSpec, g: GridSpec, x: wp.vec3, max_dist: float, 
     On the surface itself (closer than ON_SURFACE cells) the direction is float32 noise
     and the face normal stands in. On an open sheet, or a mesh wound inwards, that
     normal may point to either side, so it is turned to agree with ``side``: the
-    direction the point had before (its remembered colour, Eq. 21), or minus its motion.
+    direction the point had before (its remembered color, Eq. 21), or minus its motion.
     A zero ``side`` (a node) keeps the face normal as it is."""
-    c = Colour()
+    c = Color()
     c.body = -1
-    q = wp.mesh_query_point_no_sign(spec.mesh, x, max_dist)
+    q = wp.mesh_query_point_no_sign(colliders.mesh, x, max_dist)
     if q.result:
-        c.cp = wp.mesh_eval_position(spec.mesh, q.face, q.u, q.v)
-        d = x - c.cp
+        c.surface_point = wp.mesh_eval_position(colliders.mesh, q.face, q.u, q.v)
+        d = x - c.surface_point
         dl = wp.length(d)
         if dl > ON_SURFACE * g.dx:
-            c.cn = d / dl
+            c.surface_side = d / dl
         else:
-            c.cn = wp.mesh_eval_face_normal(spec.mesh, q.face)
-            if wp.dot(c.cn, side) < 0.0:
-                c.cn = -c.cn
-        c.body = spec.face_body[q.face]
+            c.surface_side = wp.mesh_eval_face_normal(colliders.mesh, q.face)
+            if wp.dot(c.surface_side, side) < 0.0:
+                c.surface_side = -c.surface_side
+        c.body = colliders.face_body[q.face]
     return c
 
 
@@ -216,17 +215,17 @@ class Crossing:
 
 
 @wp.func
-def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.vec3, dt: float, cbody: int,
-                  cn: wp.vec3):
+def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new: wp.vec3, dt: float, surface_body: int,
+                  surface_side: wp.vec3):
     """Continuous collision: if the particle's motion relative to the collider crosses a
     surface, stop it just before the hit, on its own side."""
     out = Crossing()
     out.hit = 0
     out.x = x_new
     start = x_old
-    if cbody >= 0:
-        start = x_old + dt * rigid_velocity(spec.bodies[cbody], x_old)  # where x_old is carried by the body
-        start = start + (RAY_BACKOFF * g.dx) * cn  # off the surface, on the particle's own side
+    if surface_body >= 0:
+        start = x_old + dt * rigid_velocity(colliders.bodies[surface_body], x_old)  # where x_old is carried by the body
+        start = start + (RAY_BACKOFF * g.dx) * surface_side  # off the surface, on the particle's own side
     seg = x_new - start
     L = wp.length(seg)
     if L < 1.0e-9 * g.dx:
@@ -235,7 +234,7 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
     # The ray reaches STOP_GAP cells past the end point: a step that ends within
     # round-off past a surface (or just short of it) is stopped like any other, so
     # the float32 intersection test can never let an end point slip through.
-    q = wp.mesh_query_ray(spec.mesh, start, dirn, L + STOP_GAP * g.dx)
+    q = wp.mesh_query_ray(colliders.mesh, start, dirn, L + STOP_GAP * g.dx)
     if q.result:
         out.hit = 1
         out.n = q.normal
@@ -248,36 +247,36 @@ def stop_crossing(spec: CollisionSpec, g: GridSpec, x_old: wp.vec3, x_new: wp.ve
         # so it is on the particle's side of every surface.
         cos_hit = wp.max(-wp.dot(out.n, dirn), 1.0e-3)
         out.x = start + wp.max(q.t - STOP_GAP * g.dx / cos_hit, 0.0) * dirn
-        out.body = spec.face_body[q.face]
+        out.body = colliders.face_body[q.face]
     return out
 
 
 @wp.kernel
-def colour_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), spec: CollisionSpec,
-                     g: GridSpec, f: ColourField,
-                     cp: wp.array(dtype=wp.vec3), cn: wp.array(dtype=wp.vec3), cbody: wp.array(dtype=wp.int32)):
+def color_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), colliders: ColliderArrays,
+                     g: GridSpec, f: ColorField,
+                     surface_point: wp.array(dtype=wp.vec3), surface_side: wp.array(dtype=wp.vec3), surface_body: wp.array(dtype=wp.int32)):
     p = wp.tid()
     if level[p] != g.level:
         return
-    c = Colour()
+    c = Color()
     c.body = -1
-    if spec.cpic != 0 and near_surface(f, g, x[p]):
+    if colliders.cpic != 0 and near_surface(f, g, x[p]):
         side = wp.vec3(0.0)
-        if cbody[p] >= 0:
-            side = cn[p]  # keep the side it had (a split child keeps its parent's)
-        c = colour_point(spec, g, x[p], PARTICLE_BAND * g.dx, side)
-    cp[p] = c.cp
-    cn[p] = c.cn
-    cbody[p] = c.body
+        if surface_body[p] >= 0:
+            side = surface_side[p]  # keep the side it had (a split child keeps its parent's)
+        c = color_point(colliders, g, x[p], PARTICLE_BAND * g.dx, side)
+    surface_point[p] = c.surface_point
+    surface_side[p] = c.surface_side
+    surface_body[p] = c.body
 
 
 @wp.func
-def colour_node(spec: CollisionSpec, g: GridSpec, f: ColourField, n: int, c: wp.vec3i):
+def color_node(colliders: ColliderArrays, g: GridSpec, f: ColorField, n: int, c: wp.vec3i):
     xi = node_position(g, c)
-    col = colour_point(spec, g, xi, NODE_BAND * g.dx, wp.vec3(0.0))
+    col = color_point(colliders, g, xi, NODE_BAND * g.dx, wp.vec3(0.0))
     if col.body >= 0:
-        f.dist[n] = wp.length(xi - col.cp)
-        f.dir[n] = col.cn
+        f.dist[n] = wp.length(xi - col.surface_point)
+        f.dir[n] = col.surface_side
         f.body[n] = col.body
     else:
         f.dist[n] = FAR
@@ -286,18 +285,18 @@ def colour_node(spec: CollisionSpec, g: GridSpec, f: ColourField, n: int, c: wp.
 
 
 @wp.kernel
-def colour_node_box(spec: CollisionSpec, g: GridSpec, lo: wp.vec3i, f: ColourField):
+def color_node_box(colliders: ColliderArrays, g: GridSpec, lo: wp.vec3i, f: ColorField):
     # dense grid: the nodes of an index box
     a, b, c = wp.tid()
     node = wp.vec3i(lo[0] + a, lo[1] + b, lo[2] + c)
-    colour_node(spec, g, f, node_index(g, node[0], node[1], node[2]), node)
+    color_node(colliders, g, f, node_index(g, node[0], node[1], node[2]), node)
 
 
 @wp.kernel
-def colour_node_range(spec: CollisionSpec, g: GridSpec, first: int, f: ColourField):
+def color_node_range(colliders: ColliderArrays, g: GridSpec, first: int, f: ColorField):
     # sparse grid: a range of storage indices (whole blocks)
     n = first + wp.tid()
-    colour_node(spec, g, f, n, node_coords(g, n))
+    color_node(colliders, g, f, n, node_coords(g, n))
 
 
 @wp.kernel
@@ -312,71 +311,46 @@ def transform_vertices(rest: wp.array(dtype=wp.vec3), vertex_body: wp.array(dtyp
 # --------------------------------------------------------------------------- host side
 
 
+class Motion(Protocol):
+    """What the solver needs of a collider's motion (see ``abmpm.geometry.motion``):
+    ``pose(t)`` with ``rotation`` (3x3), ``offset`` (x = R x_rest + offset),
+    ``pivot``, ``velocity`` and ``omega``; ``static`` if it never moves."""
+
+    static: bool
+
+    def pose(self, t: float): ...
+
+
 @dataclass
-class Pose:
-    rotation: np.ndarray  # (3,3) applied about the pivot's rest position
-    offset: np.ndarray  # x = R x_rest + offset
-    pivot: np.ndarray  # current pivot position
-    velocity: np.ndarray
-    omega: np.ndarray
+class RigidBody:
+    """One collider as the solver sees it: a rest mesh, its contact law and its motion."""
 
-
-class KinematicMotion:
-    """Rigid motion of one collider: constant velocities or interpolated keyframes."""
-
-    def __init__(self, motion, default_pivot):
-        self.pivot0 = np.asarray(motion.pivot if motion.pivot is not None else default_pivot, dtype=np.float64)
-        self.v = np.asarray(motion.velocity, dtype=np.float64)
-        self.w = np.asarray(motion.angular_velocity, dtype=np.float64)
-        self.keys = motion.keyframes
-        self.static = motion.is_static
-        if self.keys:
-            self.times = np.array([k.time for k in self.keys])
-            self.trans = np.array([k.translation for k in self.keys], dtype=np.float64)
-            rots = Rotation.from_matrix(np.stack([euler_matrix(k.rotation) for k in self.keys]))
-            self.slerp = Slerp(self.times, rots) if len(self.keys) > 1 else None
-            self.rot0 = rots[0]
-
-    def _keyframe(self, t):
-        t = float(np.clip(t, self.times[0], self.times[-1]))
-        trans = np.array([np.interp(t, self.times, self.trans[:, a]) for a in range(3)])
-        rot = self.slerp([t])[0] if self.slerp is not None else self.rot0
-        return rot, trans
-
-    def pose(self, t: float) -> Pose:
-        if self.keys:
-            rot, trans = self._keyframe(t)
-            # velocities of the current keyframe segment (zero outside the keyed range)
-            h = 1e-4
-            rot2, trans2 = self._keyframe(t + h)
-            vel = (trans2 - trans) / h
-            omega = (rot2 * rot.inv()).as_rotvec() / h
-        else:
-            rot = Rotation.from_rotvec(self.w * t)
-            trans, vel, omega = self.v * t, self.v, self.w
-        R = rot.as_matrix()
-        pivot = self.pivot0 + trans
-        return Pose(rotation=R, offset=pivot - R @ self.pivot0, pivot=pivot, velocity=vel, omega=omega)
+    vertices: np.ndarray  # (V, 3) at rest
+    faces: np.ndarray  # (F, 3)
+    motion: Motion
+    boundary: str = "separate"  # sticky, slip or separate
+    friction: float = 0.0  # Coulomb coefficient
+    separation: float = 0.0  # separating speed c of paper Eq. 23, m/s
 
 
 class ColliderSet:
     """All rigid colliders of a scene: one BVH mesh, per-body motion and boundary type."""
 
-    def __init__(self, meshes: list[trimesh.Trimesh], specs: list, device, cpic: bool = True):
+    def __init__(self, bodies: list[RigidBody], device, cpic: bool = True):
         self.device = device
-        self.specs = specs
+        self.bodies = bodies
         verts, faces, vbody, fbody = [], [], [], []
         base = 0
-        for b, m in enumerate(meshes):
-            verts.append(np.asarray(m.vertices, dtype=np.float64))
-            faces.append(np.asarray(m.faces, dtype=np.int64) + base)
-            vbody.append(np.full(len(m.vertices), b, np.int32))
-            fbody.append(np.full(len(m.faces), b, np.int32))
-            base += len(m.vertices)
+        for b, body in enumerate(bodies):
+            verts.append(np.asarray(body.vertices, dtype=np.float64))
+            faces.append(np.asarray(body.faces, dtype=np.int64) + base)
+            vbody.append(np.full(len(body.vertices), b, np.int32))
+            fbody.append(np.full(len(body.faces), b, np.int32))
+            base += len(body.vertices)
         self.rest = np.concatenate(verts)
         self.faces = np.concatenate(faces).astype(np.int32)
         self.vertex_body = np.concatenate(vbody)
-        self.motions = [KinematicMotion(s.motion, s.center) for s in specs]
+        self.motions = [body.motion for body in bodies]
         self.static = all(m.static for m in self.motions)
         self._rest_d = wp.array(self.rest.astype(np.float32), dtype=wp.vec3, device=device)
         self._vbody_d = wp.array(self.vertex_body, dtype=wp.int32, device=device)
@@ -384,37 +358,37 @@ class ColliderSet:
             points=wp.array(self.rest.astype(np.float32), dtype=wp.vec3, device=device),
             indices=wp.array(self.faces.ravel(), dtype=wp.int32, device=device),
         )
-        self.spec = CollisionSpec()
-        self.spec.enabled = 1
-        self.spec.cpic = int(cpic)
-        self.spec.mesh = self.mesh.id
+        self.arrays = ColliderArrays()
+        self.arrays.enabled = 1
+        self.arrays.cpic = int(cpic)
+        self.arrays.mesh = self.mesh.id
         self.face_body_host = np.concatenate(fbody)
-        self.spec.face_body = wp.array(self.face_body_host, dtype=wp.int32, device=device)
+        self.arrays.face_body = wp.array(self.face_body_host, dtype=wp.int32, device=device)
         self.time = None
-        self._region = {}  # grid id -> node box last coloured
+        self._region = {}  # grid id -> node box last colored
         self.set_time(0.0)
 
     @property
     def triangle_count(self) -> int:
         return len(self.faces)
 
-    def poses(self, t: float) -> list[Pose]:
+    def poses(self, t: float) -> list:
         return [m.pose(t) for m in self.motions]
 
     def set_time(self, t: float) -> None:
         """Move the colliders to time t: vertices, BVH refit, Eq. 22 velocities."""
         poses = self.poses(t)
         bodies = []
-        for s, p in zip(self.specs, poses):
+        for body, p in zip(self.bodies, poses):
             b = ColliderBody()
-            b.boundary = BOUNDARY_IDS[s.boundary]
-            b.friction = float(s.friction)
-            b.separation = float(s.separation)
+            b.boundary = BOUNDARY_IDS[body.boundary]
+            b.friction = float(body.friction)
+            b.separation = float(body.separation)
             b.velocity = wp.vec3(*p.velocity)
             b.omega = wp.vec3(*p.omega)
             b.pivot = wp.vec3(*p.pivot)
             bodies.append(b)
-        self.spec.bodies = wp.array(bodies, dtype=ColliderBody, device=self.device)
+        self.arrays.bodies = wp.array(bodies, dtype=ColliderBody, device=self.device)
         if self.time is not None and self.static:
             return
         rot = wp.array(np.stack([p.rotation for p in poses]).astype(np.float32), dtype=wp.mat33, device=self.device)
@@ -437,31 +411,31 @@ class ColliderSet:
         """One world-space mesh per collider at time t (default: the current pose)."""
         v = self.vertices(t)
         fb = self.face_body_host
-        return [trimesh.Trimesh(v, self.faces[fb == b], process=False) for b in range(len(self.specs))]
+        return [trimesh.Trimesh(v, self.faces[fb == b], process=False) for b in range(len(self.bodies))]
 
     def triangles(self, t: float | None = None) -> np.ndarray:
         """(M, 3, 3) world-space triangles, for rendering."""
         return self.vertices(t)[self.faces]
 
     def node_box(self, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
-        """Node index box covering the colliders plus the colour band."""
+        """Node index box covering the colliders plus the color band."""
         v = self.vertices()
-        o = np.array([grid.spec.origin[a] for a in range(3)])
+        o = grid.origin
         pad = NODE_BAND + 1
         lo = np.floor((v.min(axis=0) - o) / grid.dx - pad).astype(int)
         hi = np.ceil((v.max(axis=0) - o) / grid.dx + pad).astype(int) + 1
         dims = np.array(grid.dims)
         return np.clip(lo, 0, dims), np.clip(hi, 0, dims)
 
-    def colour(self, grid: Grid, first_slot: int = 0) -> None:
-        """(Re)build the colour distance field of a grid around the colliders: on a
+    def color(self, grid: Grid, first_slot: int = 0) -> None:
+        """(Re)build the color distance field of a grid around the colliders: on a
         dense grid the node box around them (and what they covered before they
         moved), on a sparse grid the active blocks from ``first_slot`` on."""
         if grid.sparse:
             count = (grid.active_slots - first_slot) * BLOCK_NODES
             if count > 0:
-                wp.launch(colour_node_range, dim=count, inputs=[self.spec, grid.spec, first_slot * BLOCK_NODES],
-                          outputs=[grid.colour], device=self.device)
+                wp.launch(color_node_range, dim=count, inputs=[self.arrays, grid.spec, first_slot * BLOCK_NODES],
+                          outputs=[grid.color], device=self.device)
             return
         lo, hi = self.node_box(grid)
         prev = self._region.get(id(grid))
@@ -471,12 +445,12 @@ class ColliderSet:
         shape = tuple(int(s) for s in hi - lo)
         if min(shape) <= 0:
             return
-        wp.launch(colour_node_box, dim=shape, inputs=[self.spec, grid.spec, wp.vec3i(*[int(a) for a in lo])],
-                  outputs=[grid.colour], device=self.device)
+        wp.launch(color_node_box, dim=shape, inputs=[self.arrays, grid.spec, wp.vec3i(*[int(a) for a in lo])],
+                  outputs=[grid.color], device=self.device)
 
 
-def empty_spec(device) -> CollisionSpec:
-    s = CollisionSpec()
+def empty_colliders(device) -> ColliderArrays:
+    s = ColliderArrays()
     s.enabled = 0
     s.cpic = 0
     s.mesh = 0
@@ -485,20 +459,20 @@ def empty_spec(device) -> CollisionSpec:
     return s
 
 
-def colour_field(n: int, device) -> ColourField:
-    """Colour field for n nodes of storage, all far from every collider."""
-    f = ColourField()
+def color_field(n: int, device) -> ColorField:
+    """Color field for n nodes of storage, all far from every collider."""
+    f = ColorField()
     f.dist = wp.full(n, FAR, dtype=float, device=device)
     f.dir = wp.zeros(n, dtype=wp.vec3, device=device)
     f.body = wp.full(n, -1, dtype=wp.int32, device=device)
     return f
 
 
-def grow_colour_field(f: ColourField, n: int) -> ColourField:
-    """A colour field with room for n nodes, keeping the existing entries."""
+def grow_color_field(f: ColorField, n: int) -> ColorField:
+    """A color field with room for n nodes, keeping the existing entries."""
     if f.dist.shape[0] >= n:
         return f
-    g = colour_field(n, f.dist.device)
+    g = color_field(n, f.dist.device)
     for name in ("dist", "dir", "body"):
         wp.copy(getattr(g, name), getattr(f, name), count=getattr(f, name).shape[0])
     return g

@@ -44,7 +44,7 @@ def frame_diagnostics(s: dict[str, np.ndarray], dx_of_level: dict[int, float], g
 
 def first_non_finite(s: dict[str, np.ndarray]) -> str | None:
     """Name of the first state array holding a NaN or infinity, else None."""
-    for name in ("x", "v", "C", "F", "plastic"):
+    for name in ("x", "v", "C", "F", "history"):
         if not np.isfinite(s[name]).all():
             return name
     return None

@@ -8,7 +8,7 @@ in flat arrays addressed through :func:`node_index`:
   a small dense table maps a block to a slot in a pool of active blocks, or to -1.
   Blocks are activated from the refined region and from level-1 particles; memory
   and time follow them, not the domain volume. Slots are kept once given, so the
-  colour distance field of a block is built once for static colliders.
+  color distance field of a block is built once for static colliders.
 
 Transfer kernels take the :class:`GridSpec` struct, so the same code serves any
 spacing and either storage.
@@ -119,7 +119,7 @@ class Grid:
     mv: wp.array  # momentum during P2G (flat)
     m: wp.array  # mass
     v: wp.array  # velocity after the grid update (read by G2P)
-    colour: object = None  # ColourField of the colliders (CPIC), set by the solver
+    color: object = None  # ColorField of the colliders (CPIC), set by the solver
     active_slots: int = 0  # sparse: blocks in use
 
     @property
@@ -130,6 +130,11 @@ class Grid:
     @property
     def dx(self) -> float:
         return float(self.spec.dx)
+
+    @property
+    def origin(self) -> np.ndarray:
+        """Position of node (0, 0, 0), the corner of cell (0, 0, 0)."""
+        return np.array([self.spec.origin[a] for a in range(3)], dtype=np.float64)
 
     @property
     def level(self) -> int:

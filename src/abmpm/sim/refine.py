@@ -2,10 +2,10 @@
 
 The refined region B_s is a flag per coarse cell. A level-0 particle in a refined
 cell becomes N_s = b^3 level-1 children on a sub-lattice of its own volume,
-deformed by its F (DESIGN.md step 3):
+deformed by its F (docs/method.md, "Split"):
 
     x_c = x_p + F_p d_k,   m_c = m_p / N_s,   V_c = V_p / N_s,
-    v_c = v_p + C_p (x_c - x_p),   C, F and the plastic state copied.
+    v_c = v_p + C_p (x_c - x_p),   C, F and the history state copied.
 
 Since sum_k d_k = 0, mass and linear momentum are conserved exactly (up to float32
 rounding of the products). Children remember their parent's id (``family``).
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .colliders import CollisionSpec, stop_crossing
+from .colliders import ColliderArrays, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
 from .state import ParticleArrays, ParticleState
 from .transfer import stencil_base
@@ -41,7 +41,7 @@ def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0:
 @wp.kernel
 def split_particles(
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
-    s: ParticleArrays, spec: CollisionSpec, g1: GridSpec,
+    s: ParticleArrays, colliders: ColliderArrays, g1: GridSpec,
 ):
     p = wp.tid()
     if flag[p] == 0:
@@ -56,8 +56,8 @@ def split_particles(
     mc = s.mass[p] / float(ns)
     Vc = s.volume[p] / float(ns)
     parent = s.id[p]
-    cbody = s.cbody[p]
-    cn = s.cn[p]
+    surface_body = s.surface_body[p]
+    surface_side = s.surface_side[p]
     first = n_old + offset[p] * (ns - 1)
     for c in range(ns):
         q = p
@@ -66,20 +66,20 @@ def split_particles(
         d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
         xc = xp + Fp * (h * d)
         s.v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
-        if spec.cpic != 0 and cbody >= 0:
+        if colliders.cpic != 0 and surface_body >= 0:
             # A child is never placed across a collider from its parent: near a sheet
             # it stops on the parent's side (its velocity stays that of the lattice
             # point, so momentum is still exact).
-            hit = stop_crossing(spec, g1, xp, xc, 0.0, cbody, cn)
+            hit = stop_crossing(colliders, g1, xp, xc, 0.0, surface_body, surface_side)
             if hit.hit != 0:
                 xc = hit.x
         s.x[q] = xc
         s.C[q] = Cp
         s.F[q] = Fp
-        s.plastic[q] = s.plastic[p]
-        s.cp[q] = s.cp[p]
-        s.cn[q] = cn
-        s.cbody[q] = cbody
+        s.history[q] = s.history[p]
+        s.surface_point[q] = s.surface_point[p]
+        s.surface_side[q] = surface_side
+        s.surface_body[q] = surface_body
         s.mass[q] = mc
         s.volume[q] = Vc
         s.material[q] = s.material[p]
@@ -165,7 +165,7 @@ class Refiner:
         g.grow(int(self.counter.numpy()[0]))
         return old
 
-    def split(self, state: ParticleState, next_id: int, collision: CollisionSpec) -> int:
+    def split(self, state: ParticleState, next_id: int, colliders: ColliderArrays) -> int:
         """Split the level-0 particles inside the region; returns how many were split."""
         n = state.count
         if n == 0 or not self.region_cells.any():
@@ -183,7 +183,7 @@ class Refiner:
         ns = self.b**3
         state.reserve(n + n_split * (ns - 1))
         wp.launch(split_particles, dim=n, device=self.device,
-                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), collision,
+                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), colliders,
                           self.fine.spec])
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
@@ -205,7 +205,7 @@ def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> t
     grown by the hysteresis margin) and it is still compact: every child within one
     parent lattice spacing of the family's centre of mass. The merged particle has
     the summed mass and volume, the centre of mass, the mass-averaged velocity
-    (linear momentum conserved to round-off), and mass-averaged C, F and plastic
+    (linear momentum conserved to round-off), and mass-averaged C, F and history
     state; it takes back the parent's id. Host-side, once per frame.
     """
     ns = b**3
@@ -245,12 +245,12 @@ def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> t
     first[g[::-1]] = members[::-1]  # one representative child per family
     new = {
         "x": mass_average("x"), "v": mass_average("v"), "C": mass_average("C"), "F": mass_average("F"),
-        "plastic": mass_average("plastic"),
+        "history": mass_average("history"),
         "mass": Mg.astype(a["mass"].dtype),
         "volume": np.bincount(g, a["volume"][members].astype(np.float64), minlength=k).astype(a["volume"].dtype),
         "material": a["material"][first], "level": np.zeros(k, dtype=a["level"].dtype),
         "id": fam_ids[merged_ids].astype(a["id"].dtype), "family": np.full(k, -1, dtype=a["family"].dtype),
-        "cp": a["cp"][first], "cn": a["cn"][first], "cbody": np.full(k, -1, dtype=a["cbody"].dtype),
+        "surface_point": a["surface_point"][first], "surface_side": a["surface_side"][first], "surface_body": np.full(k, -1, dtype=a["surface_body"].dtype),
     }
     stay = np.ones(len(a["x"]), dtype=bool)
     stay[members] = False

@@ -2,7 +2,7 @@
 
 ``MPMSolver.step(state, dt, time)`` is the whole step:
 
-1. move the colliders to ``time`` and rebuild their colour distance field;
+1. move the colliders to ``time`` and rebuild their color distance field;
 2. adaptive mode: split the level-0 particles that entered the refined region
    (Eq. 15) and give the fine grid the blocks its particles need;
 3. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
@@ -22,14 +22,14 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from ..scene.model import FACES
 from . import transfer
+from .boundary import FACES
 from .colliders import (
     ColliderSet,
-    colour_field,
-    colour_particles,
-    empty_spec,
-    grow_colour_field,
+    color_field,
+    color_particles,
+    empty_colliders,
+    grow_color_field,
 )
 from .grid import Grid
 from .materials import MaterialParams
@@ -70,13 +70,14 @@ class MPMSolver:
             self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device)
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
-        self.cpic = colliders is not None and bool(colliders.spec.cpic)
-        self.collision = colliders.spec if colliders is not None else empty_spec(device)
+        self.cpic = colliders is not None and bool(colliders.arrays.cpic)
+        self.collider_arrays = colliders.arrays if colliders is not None else empty_colliders(device)
         for g in self.grids:
-            g.colour = colour_field(g.capacity if colliders is not None else 1, device)
+            g.color = color_field(g.capacity if colliders is not None else 1, device)
             if colliders is not None and not g.sparse:
-                colliders.colour(g)
-        self.next_id = 0
+                colliders.color(g)
+        self._next_id = 0  # id of the next particle a split creates
+        self._first_split_id = None  # ids from here on were made by splits (set by the first reserve_ids)
         self._steps = 0
         self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
@@ -86,10 +87,48 @@ class MPMSolver:
         self.signal = wp.array([0.0, 1.0], dtype=float, device=device)
         self._signal_at_rest = wp.array([0.0, 1.0], dtype=float, device=device)
 
+    # ------------------------------------------------------------------ questions
+
     @property
     def grid(self) -> Grid:
         """The level-0 (coarsest) grid."""
         return self.grids[0]
+
+    @property
+    def grid_origin(self) -> np.ndarray:
+        """Position of coarse node (0, 0, 0): the corner of coarse cell (0, 0, 0)."""
+        return self.grid.origin
+
+    @property
+    def level_spacings(self) -> dict[int, float]:
+        """Grid spacing of every level this solver runs (level -> dx)."""
+        return {g.level: g.dx for g in self.grids}
+
+    @property
+    def finest_active_dx(self) -> float:
+        """The spacing the CFL condition must respect now: dx/b once the fine level
+        holds material or a refined region, else dx."""
+        if self.refiner is not None and (self.refiner.region_cells.any() or self._next_id > (self._first_split_id or 0)):
+            return self.grids[1].dx
+        return self.grid.dx
+
+    @property
+    def region(self) -> np.ndarray | None:
+        """The refined coarse cells B_s (bool, one per coarse cell; a copy), or None
+        without a fine level."""
+        return None if self.refiner is None else self.refiner.region_cells.copy()
+
+    @property
+    def next_id(self) -> int:
+        """The id the next particle made by a split will get."""
+        return self._next_id
+
+    def reserve_ids(self, next_id: int) -> None:
+        """Ids below ``next_id`` are taken (sampled or restored particles); splits
+        number their children from there."""
+        if self._first_split_id is None:
+            self._first_split_id = int(next_id)
+        self._next_id = int(next_id)
 
     # ------------------------------------------------------------------ the step
 
@@ -120,7 +159,7 @@ class MPMSolver:
             self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         wp.launch(
             transfer.P2G[self.cpic, g.sparse, only_level >= 0], dim=s.count, device=self.device,
-            inputs=[s.arrays(), self._cmask_for(s), self.materials, g.spec, g.colour, dt, self._tau, int(store), only_level, overlap,
+            inputs=[s.arrays(), self._cmask_for(s), self.materials, g.spec, g.color, dt, self._tau, int(store), only_level, overlap,
                     self._occupied(g), g.mv, g.m],
         )
 
@@ -143,13 +182,13 @@ class MPMSolver:
     def _grid_update(self, g: Grid, dt: float) -> None:
         if g.node_count:
             wp.launch(transfer.grid_update, dim=g.node_count, device=self.device,
-                      inputs=[g.spec, self.collision, g.colour, dt, g.mv, g.m, g.v, self._occupied(g),
+                      inputs=[g.spec, self.collider_arrays, g.color, dt, g.mv, g.m, g.v, self._occupied(g),
                               int(self.refiner is not None and not g.sparse)])
 
     def _g2p(self, s: ParticleState, g: Grid, dt: float) -> None:
         wp.launch(
             transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
-            inputs=[self.materials, g.spec, self.collision, g.colour, dt, g.v,
+            inputs=[self.materials, g.spec, self.collider_arrays, g.color, dt, g.v,
                     s.arrays(), self._cmask_for(s), self.signal],
         )
 
@@ -162,10 +201,10 @@ class MPMSolver:
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
-        checkpoint, edited, merged): fine blocks for its level-1 particles, colours."""
+        checkpoint, edited, merged): fine blocks for its level-1 particles, colors."""
         if self.refiner is not None:
             self._after_activation(self.refiner.activate(state))
-        self.colour_particles(state)
+        self.color_particles(state)
 
     def reset_step_count(self, steps: int) -> None:
         """Steps taken so far (refinement runs every REFINE_EVERY steps), for resuming."""
@@ -174,23 +213,23 @@ class MPMSolver:
     # ------------------------------------------------------------------ colliders
 
     def move_colliders(self, time: float) -> None:
-        """Colliders to time t (Eq. 22 velocities), colour fields rebuilt if they moved."""
+        """Colliders to time t (Eq. 22 velocities), color fields rebuilt if they moved."""
         c = self.colliders
         if c is None or (c.static and c.time is not None):
             return
         c.set_time(time)
-        self.collision = c.spec
+        self.collider_arrays = c.arrays
         for g in self.grids:
-            c.colour(g)
+            c.color(g)
 
-    def colour_particles(self, state: ParticleState) -> None:
-        """CPIC colour of every particle from its own grid (later steps update it in G2P)."""
+    def color_particles(self, state: ParticleState) -> None:
+        """CPIC color of every particle from its own grid (later steps update it in G2P)."""
         if self.colliders is None or not self.cpic:
             return
         for g in self.grids:
-            wp.launch(colour_particles, dim=state.count, device=self.device,
-                      inputs=[state.x, state.level, self.collision, g.spec, g.colour],
-                      outputs=[state.cp, state.cn, state.cbody])
+            wp.launch(color_particles, dim=state.count, device=self.device,
+                      inputs=[state.x, state.level, self.collider_arrays, g.spec, g.color],
+                      outputs=[state.surface_point, state.surface_side, state.surface_body])
 
     # ------------------------------------------------------------------ refinement
 
@@ -204,18 +243,18 @@ class MPMSolver:
     def refine(self, state: ParticleState) -> None:
         """Split particles that entered the region (Eq. 15); activate the fine blocks
         the level-1 particles reach."""
-        n_split = self.refiner.split(state, self.next_id, self.collision)
+        n_split = self.refiner.split(state, self._next_id, self.collider_arrays)
         if n_split:
-            self.next_id += n_split * self.refiner.b**3
-            self.colour_particles(state)
+            self._next_id += n_split * self.refiner.b**3
+            self.color_particles(state)
         first = self.refiner.activate(state)
         self._after_activation(first)
 
     def _after_activation(self, first_slot: int) -> None:
         fine = self.grids[1]
         if self.colliders is not None:
-            fine.colour = grow_colour_field(fine.colour, fine.capacity)
-            self.colliders.colour(fine, first_slot)
+            fine.color = grow_color_field(fine.color, fine.capacity)
+            self.colliders.color(fine, first_slot)
 
     # ------------------------------------------------------------------ sorting
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-DYNAMIC = ("x", "v", "C", "F", "plastic", "cp", "cn", "cbody")
+DYNAMIC = ("x", "v", "C", "F", "history", "surface_point", "surface_side", "surface_body")
 STATIC = ("mass", "volume", "material", "level", "id", "family")
 FIELDS = DYNAMIC + STATIC
 DTYPES = {
@@ -20,15 +20,15 @@ DTYPES = {
     "v": wp.vec3,
     "C": wp.mat33,
     "F": wp.mat33,
-    "plastic": float,
+    "history": float,
     "mass": float,
     "volume": float,
     "material": wp.int32,
     "level": wp.int32,
     "id": wp.int32,
-    "cp": wp.vec3,
-    "cn": wp.vec3,
-    "cbody": wp.int32,
+    "surface_point": wp.vec3,
+    "surface_side": wp.vec3,
+    "surface_body": wp.int32,
     "family": wp.int32,
 }
 
@@ -41,10 +41,10 @@ class ParticleArrays:
     v: wp.array(dtype=wp.vec3)
     C: wp.array(dtype=wp.mat33)
     F: wp.array(dtype=wp.mat33)
-    plastic: wp.array(dtype=float)
-    cp: wp.array(dtype=wp.vec3)
-    cn: wp.array(dtype=wp.vec3)
-    cbody: wp.array(dtype=wp.int32)
+    history: wp.array(dtype=float)
+    surface_point: wp.array(dtype=wp.vec3)
+    surface_side: wp.array(dtype=wp.vec3)
+    surface_body: wp.array(dtype=wp.int32)
     mass: wp.array(dtype=float)
     volume: wp.array(dtype=float)
     material: wp.array(dtype=wp.int32)
@@ -59,12 +59,12 @@ class ParticleState:
     v: wp.array  # velocity, m/s
     C: wp.array  # APIC affine matrix (~ velocity gradient), 1/s
     F: wp.array  # elastic deformation gradient (identity for fluids)
-    plastic: wp.array  # scalar state: fluid volume ratio J; snow J_P; sand volume correction
-    # colour w.r.t. the nearest collider (CPIC): closest surface point, unit direction
+    history: wp.array  # scalar state: fluid volume ratio J; snow J_P; sand volume correction
+    # color w.r.t. the nearest collider (CPIC): closest surface point, unit direction
     # from it to the particle, and the collider index (-1 when far from all)
-    cp: wp.array
-    cn: wp.array
-    cbody: wp.array
+    surface_point: wp.array
+    surface_side: wp.array
+    surface_body: wp.array
     mass: wp.array  # kg
     volume: wp.array  # initial volume V0, m^3
     material: wp.array  # index into the scene's materials
@@ -130,13 +130,13 @@ class ParticleState:
 def _default(name: str, n: int) -> np.ndarray:
     if name == "F":
         return np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
-    if name == "plastic":
+    if name == "history":
         return np.ones(n, dtype=np.float32)
     if name in ("material", "level"):
         return np.zeros(n, dtype=np.int32)
     if name == "id":
         return np.arange(n, dtype=np.int32)
-    if name in ("cbody", "family"):
+    if name in ("surface_body", "family"):
         return np.full(n, -1, dtype=np.int32)
     if name in ("C",):
         return np.zeros((n, 3, 3), dtype=np.float32)

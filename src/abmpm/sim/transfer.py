@@ -18,11 +18,11 @@ from .boundary import boundary_response
 from .colliders import (
     ALL_NODES,
     PARTICLE_BAND,
-    CollisionSpec,
-    Colour,
-    ColourField,
+    ColliderArrays,
+    Color,
+    ColorField,
     boundary_velocity,
-    colour_point,
+    color_point,
     compatibility_mask,
     near_surface,
     node_bit,
@@ -39,15 +39,7 @@ from .grid import (
     stencil_slots,
     vec8i,
 )
-from .materials import (
-    MODEL_FLUID,
-    MaterialParams,
-    fluid_stress,
-    fluid_volume_update,
-    solid_stress,
-    stiffening,
-    update_deformation,
-)
+from .materials import MaterialParams, deform_particle, particle_stress, sound_speed_ratio
 from .state import ParticleArrays
 
 FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
@@ -89,7 +81,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
-        colour: ColourField,
+        color: ColorField,
         dt: float,
         tau_store: wp.array(dtype=wp.mat33),
         store: int,
@@ -126,11 +118,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         if wp.static(sparse):
             tau = tau_store[p]
         else:
-            mat = materials[s.material[p]]
-            if mat.model == MODEL_FLUID:
-                tau = fluid_stress(mat, s.plastic[p], Cp)  # no F traffic for fluids
-            else:
-                tau = solid_stress(mat, s.F[p], Cp, s.plastic[p])
+            tau = particle_stress(materials[s.material[p]], s.F, s.history, p, Cp)
             if store != 0:
                 tau_store[p] = tau
         if wp.static(overlap_pass):
@@ -144,8 +132,8 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         mask = ALL_NODES
         if wp.static(cpic):
             # CPIC: scatter only to nodes on the particle's side of every collider
-            if s.cbody[p] >= 0:
-                mask = compatibility_mask(s.cp[p], s.cn[p], s.cbody[p], xp, colour, g, base, fx)
+            if s.surface_body[p] >= 0:
+                mask = compatibility_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color, g, base, fx)
                 if s.level[p] == g.level:
                     cmask[p] = mask  # G2P from this grid reuses it
         slots = vec8i()
@@ -205,8 +193,8 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
 @wp.kernel
 def grid_update(
     g: GridSpec,
-    spec: CollisionSpec,
-    colour: ColourField,
+    colliders: ColliderArrays,
+    color: ColorField,
     dt: float,
     grid_mv: wp.array(dtype=wp.vec3),
     grid_m: wp.array(dtype=float),
@@ -222,8 +210,8 @@ def grid_update(
     if m > 0.0:
         vi = grid_mv[n] / m + dt * g.gravity
         xi = node_position(g, node_coords(g, n))
-        if spec.enabled != 0:
-            vi = node_contact(spec, colour, g, vi, xi, n)
+        if colliders.enabled != 0:
+            vi = node_contact(colliders, color, g, vi, xi, n)
         # the domain walls have the last word: a collider never pushes material through them
         tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
         for d in range(3):
@@ -247,8 +235,8 @@ def _make_g2p(cpic: bool, sparse: bool):
     def g2p(
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
-        spec: CollisionSpec,
-        colour: ColourField,
+        colliders: ColliderArrays,
+        color: ColorField,
         dt: float,
         grid_v: wp.array(dtype=wp.vec3),
         # particle state, updated in place (each thread touches only its own particle)
@@ -284,14 +272,14 @@ def _make_g2p(cpic: bool, sparse: bool):
                     new_v += weight * vi  # Eq. 5 / 11
                     B += weight * wp.outer(vi, dpos)
         if wp.static(cpic):
-            cb = s.cbody[p]
+            cb = s.surface_body[p]
             if cb >= 0:
                 # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
                 mask = cmask[p]  # from this step's P2G
                 if mask != ALL_NODES:
                     # the particle's velocity advanced by gravity like the grid's, then
                     # projected by the collider's boundary type
-                    v_bar = boundary_velocity(spec, cb, s.cn[p], xp, s.v[p] + dt * g.gravity)
+                    v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
                     for i in range(3):
                         for j in range(3):
                             for k in range(3):
@@ -305,12 +293,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         new_C = (4.0 * g.inv_dx * g.inv_dx) * B
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
         mat = materials[s.material[p]]
-        if mat.model == MODEL_FLUID:
-            s.plastic[p] = fluid_volume_update(s.plastic[p], new_C, dt)
-        else:
-            d = update_deformation(mat, s.F[p], new_C, s.plastic[p], dt)
-            s.F[p] = d.F
-            s.plastic[p] = d.plastic
+        deform_particle(mat, s.F, s.history, p, new_C, dt)
         xn = xp + dt * new_v
         # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
         # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
@@ -323,33 +306,33 @@ def _make_g2p(cpic: bool, sparse: bool):
             # farther from every surface than it moves (relative to the collider)
             # cannot cross one: only the others cast the ray. A particle outside the
             # band casts one only if it moved farther than the band (a CFL violation).
-            cb = s.cbody[p]
+            cb = s.surface_body[p]
             reach = PARTICLE_BAND * g.dx
             dist = PARTICLE_BAND * g.dx
             side = xp - xn  # on the surface with no remembered side: it came from behind its motion
             move = wp.length(xn - xp)
             if cb >= 0:
-                move = move + dt * wp.length(rigid_velocity(spec.bodies[cb], xp))
-                dist = wp.length(xp - s.cp[p])
+                move = move + dt * wp.length(rigid_velocity(colliders.bodies[cb], xp))
+                dist = wp.length(xp - s.surface_point[p])
                 reach = dist + move + 0.01 * g.dx
-                side = s.cn[p]
+                side = s.surface_side[p]
             if move >= dist - 0.01 * g.dx:
-                hit = stop_crossing(spec, g, xp, xn, dt, cb, s.cn[p])
+                hit = stop_crossing(colliders, g, xp, xn, dt, cb, s.surface_side[p])
                 if hit.hit != 0:
                     xn = hit.x
-                    new_v = boundary_velocity(spec, hit.body, hit.n, xn, new_v)
+                    new_v = boundary_velocity(colliders, hit.body, hit.n, xn, new_v)
                     side = hit.n
-            c = Colour()
+            c = Color()
             c.body = -1
-            if near_surface(colour, g, xn):
-                # colour for the next step's transfers; the new closest point lies
+            if near_surface(color, g, xn):
+                # color for the next step's transfers; the new closest point lies
                 # within the old distance plus the motion (triangle inequality)
-                c = colour_point(spec, g, xn, wp.min(reach, PARTICLE_BAND * g.dx), side)
+                c = color_point(colliders, g, xn, wp.min(reach, PARTICLE_BAND * g.dx), side)
                 if c.body < 0 and reach < PARTICLE_BAND * g.dx:
-                    c = colour_point(spec, g, xn, PARTICLE_BAND * g.dx, side)
-            s.cp[p] = c.cp
-            s.cn[p] = c.cn
-            s.cbody[p] = c.body
+                    c = color_point(colliders, g, xn, PARTICLE_BAND * g.dx, side)
+            s.surface_point[p] = c.surface_point
+            s.surface_side[p] = c.surface_side
+            s.surface_body[p] = c.body
         # The fastest particle, and the most compressed fluid's sound speed over its
         # speed at rest, set the next step's CFL time step; a non-finite velocity
         # reads as infinitely fast, which stops the run.
@@ -357,8 +340,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         if not wp.isfinite(speed):
             speed = FAST
         wp.atomic_max(signal, 0, speed)
-        if mat.model == MODEL_FLUID:
-            wp.atomic_max(signal, 1, stiffening(mat, s.plastic[p]))
+        wp.atomic_max(signal, 1, sound_speed_ratio(mat, s.history[p]))
         s.x[p] = xn
         s.v[p] = new_v
         s.C[p] = new_C

@@ -1,0 +1,54 @@
+"""The writers of a run: one class per kind of output, behind :class:`Writer`
+(``begin`` / ``write_frame`` / ``finish``, see :mod:`abmpm.io.writers.base`).
+
+:data:`WRITERS` maps a writer's name to its class, in the order the runner calls
+them (the collider mesh of a frame before its particles, the region before the
+preview that draws it, the summary last). :func:`build_writers` picks those the
+scene's ``[output]`` section asks for. A new kind of output is a module here with a
+:class:`Writer` subclass, plus its line in :data:`WRITERS` (and in
+:func:`build_writers` if the ``[output]`` section turns it on or off).
+"""
+
+from __future__ import annotations
+
+from abmpm.io.writers.base import FrameData, FrameStore, RunContext, Writer
+from abmpm.io.writers.checkpoints import CheckpointWriter
+from abmpm.io.writers.colliders import ColliderMeshWriter
+from abmpm.io.writers.frames import ParticleFrameWriter
+from abmpm.io.writers.preview import PreviewWriter
+from abmpm.io.writers.region import RegionWriter
+from abmpm.io.writers.summary import EnergyPlotWriter, SummaryWriter
+from abmpm.io.writers.usd import UsdWriter
+from abmpm.scene.model import Output
+
+__all__ = ["WRITERS", "FrameData", "FrameStore", "RunContext", "Writer", "build_writers", "writer_names"]
+
+WRITERS: dict[str, type[Writer]] = {
+    "colliders": ColliderMeshWriter,  # colliders/collider_NNNNN.ply
+    "frames": ParticleFrameWriter,  # frames/frame_NNNNN.ply
+    "checkpoints": CheckpointWriter,  # checkpoints/checkpoint_NNNNN.npz
+    "energy": EnergyPlotWriter,  # energy.png
+    "region": RegionWriter,  # region.npz
+    "preview": PreviewWriter,  # preview.mp4, preview.png
+    "usd": UsdWriter,  # particles.usd
+    "summary": SummaryWriter,  # summary.json
+}
+
+
+def writer_names(output: Output, preview: bool = True) -> list[str]:
+    """Names of the writers that ``output`` (the scene's ``[output]`` section) asks for,
+    in :data:`WRITERS` order; ``preview=False`` (``abmpm run --no-preview``) drops the
+    preview."""
+    wanted = {
+        "colliders": output.frames,
+        "frames": output.frames,
+        "preview": output.preview and preview,
+        "usd": output.usd,
+    }
+    return [name for name in WRITERS if wanted.get(name, True)]
+
+
+def build_writers(output: Output, preview: bool = True) -> list[Writer]:
+    """The writers ``output`` asks for, in the order the runner calls them. A writer
+    whose requirements are missing refuses here (OutputError), before the run starts."""
+    return [WRITERS[name]() for name in writer_names(output, preview)]

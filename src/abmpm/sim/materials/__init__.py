@@ -1,0 +1,139 @@
+"""Constitutive models, one module each, registered in :data:`REGISTRY`.
+
+To add a material: write a module that builds a
+:class:`~abmpm.sim.materials.base.MaterialModel` named ``MODEL`` (scene parameters,
+device fields, wave speed, ``stress`` and ``update`` device functions; see
+``elastic.py`` for the shortest one) and add its name to ``MODULES``. Nothing else changes: the scene schema
+is generated from the registry, ``MaterialParams`` holds the union of the models'
+device fields, and the transfer kernels reach a model only through the dispatch
+functions below (unrolled at compile time with ``wp.static``, so a kernel costs
+one integer comparison per registered model).
+
+``model`` ids are positions in ``REGISTRY``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import warp as wp
+
+from .base import Deformation, MaterialModel, Parameter
+from .common import lame
+from .fluid import pressure_from_J
+
+wp.set_module_options({"enable_backward": False})
+
+# The registered models: modules of this package, each with a ``MODEL``. Their order
+# gives the ids stored in ``MaterialParams.model``.
+MODULES = ("fluid", "elastic", "viscoelastic", "sand", "snow")
+REGISTRY: tuple[MaterialModel, ...] = tuple(importlib.import_module(f".{name}", __name__).MODEL for name in MODULES)
+
+MODEL_IDS = {m.name: i for i, m in enumerate(REGISTRY)}
+BY_NAME = {m.name: m for m in REGISTRY}
+
+
+def _struct_fields(models) -> dict[str, type]:
+    fields: dict[str, type] = {"model": int, "density": float}
+    for m in models:
+        for name, kind in m.device_fields.items():
+            if fields.setdefault(name, kind) is not kind:
+                raise TypeError(f"material {m.name!r}: device field {name!r} is {kind}, another model has {fields[name]}")
+    return fields
+
+
+# One row per scene material: the union of every model's device fields (SI units).
+MaterialParams = wp.struct(
+    type("MaterialParams", (), {"__annotations__": _struct_fields(REGISTRY), "__module__": __name__,
+                                "__doc__": "Device parameters of one material (fields of every registered model)."})
+)
+
+
+def material_params(m) -> MaterialParams:
+    """A scene material (any object with ``model``, ``density`` and the model's
+    parameters as attributes) -> its device row. Fields of other models stay 0."""
+    model = BY_NAME[m.model]
+    p = MaterialParams()  # every field starts at 0
+    p.model = MODEL_IDS[m.model]
+    p.density = m.density
+    for name, value in model.device_values(m).items():
+        setattr(p, name, value)
+    return p
+
+
+def wave_speed(m) -> float:
+    """Fastest wave speed of a scene material at rest, m/s: the CFL time step uses it."""
+    return BY_NAME[m.model].wave_speed(m)
+
+
+def uses_deformation_gradient(name: str) -> bool:
+    """False for models whose F stays the identity and whose J is their ``history``."""
+    return BY_NAME[name].uses_F
+
+
+# --------------------------------------------------------------------------- dispatch
+
+
+@wp.func
+def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: float):
+    """tau = J sigma of the particle's model (used by the force of paper Eq. 9)."""
+    for i in range(wp.static(len(REGISTRY))):
+        if mat.model == i:
+            return wp.static(REGISTRY[i].stress)(mat, F, C, history)
+    return wp.mat33(0.0)
+
+
+@wp.func
+def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: float, dt: float):
+    """F <- (I + dt C) F (paper Eq. 7), then the model's return mapping (Eqs. 13-14)."""
+    for i in range(wp.static(len(REGISTRY))):
+        if mat.model == i:
+            return wp.static(REGISTRY[i].update)(mat, F, C, history, dt)
+    out = Deformation()
+    out.F = F
+    out.history = history
+    return out
+
+
+@wp.func
+def particle_stress(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int, C: wp.mat33):
+    """:func:`kirchhoff_stress` of particle p, reading F only for models that use it."""
+    for i in range(wp.static(len(REGISTRY))):
+        if mat.model == i:
+            Fp = wp.identity(n=3, dtype=float)
+            if wp.static(REGISTRY[i].uses_F):
+                Fp = F[p]
+            return wp.static(REGISTRY[i].stress)(mat, Fp, C, history[p])
+    return wp.mat33(0.0)
+
+
+@wp.func
+def deform_particle(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int, C: wp.mat33, dt: float):
+    """:func:`update_deformation` of particle p in place, touching F only for models that use it."""
+    for i in range(wp.static(len(REGISTRY))):
+        if mat.model == i:
+            Fp = wp.identity(n=3, dtype=float)
+            if wp.static(REGISTRY[i].uses_F):
+                Fp = F[p]
+            d = wp.static(REGISTRY[i].update)(mat, Fp, C, history[p], dt)
+            if wp.static(REGISTRY[i].uses_F):
+                F[p] = d.F
+            history[p] = d.history
+
+
+@wp.func
+def sound_speed_ratio(mat: MaterialParams, history: float):
+    """Sound speed over the speed at rest (>= 1) for models that stiffen under
+    compression (fluid); 1 for the others."""
+    for i in range(wp.static(len(REGISTRY))):
+        if wp.static(REGISTRY[i].sound_speed_ratio is not None):
+            if mat.model == i:
+                return wp.static(REGISTRY[i].sound_speed_ratio)(mat, history)
+    return 1.0
+
+
+__all__ = [
+    "REGISTRY", "MODEL_IDS", "BY_NAME", "MaterialModel", "Parameter", "MaterialParams", "Deformation",
+    "material_params", "wave_speed", "uses_deformation_gradient", "lame", "pressure_from_J",
+    "kirchhoff_stress", "update_deformation", "particle_stress", "deform_particle", "sound_speed_ratio",
+]

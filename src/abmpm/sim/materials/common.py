@@ -1,0 +1,104 @@
+"""Device functions shared by several material models (elasticity kernels)."""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from .base import Parameter
+
+wp.set_module_options({"enable_backward": False})
+
+# Scene parameters of every solid (the fluid has a bulk modulus instead).
+SOLID_PARAMETERS = (
+    Parameter("youngs_modulus", 1.0e5, "Young's modulus E, Pa", gt=0.0),
+    Parameter("poisson_ratio", 0.3, "Poisson's ratio nu", gt=-1.0, lt=0.5),
+)
+ELASTIC_FIELDS = {"mu": float, "lam": float}
+
+
+def lame(E: float, nu: float) -> tuple[float, float]:
+    """Lame parameters (mu, lambda) from Young's modulus and Poisson's ratio."""
+    mu = E / (2.0 * (1.0 + nu))
+    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    return mu, lam
+
+
+def lame_values(m) -> dict[str, float]:
+    mu, lam = lame(m.youngs_modulus, m.poisson_ratio)
+    return {"mu": mu, "lam": lam}
+
+
+def p_wave_speed(m) -> float:
+    """sqrt((lambda + 2 mu) / rho): the fastest elastic wave of an isotropic solid."""
+    mu, lam = lame(m.youngs_modulus, m.poisson_ratio)
+    return math.sqrt((lam + 2.0 * mu) / m.density)
+
+
+@wp.func
+def trial_deformation(F: wp.mat33, C: wp.mat33, dt: float):
+    # F <- (I + dt C) F: paper Eq. 7 with grad v ~ C (APIC)
+    return (wp.identity(n=3, dtype=float) + dt * C) * F
+
+
+@wp.func
+def viscous_kirchhoff(eta: float, J: float, C: wp.mat33):
+    # Newtonian viscous Cauchy stress eta (grad v + grad v^T), grad v ~ C (APIC)
+    if eta == 0.0:
+        return wp.mat33(0.0)
+    return (eta * J) * (C + wp.transpose(C))
+
+
+@wp.func
+def fixed_corotated(mu: float, lam: float, F: wp.mat33):
+    # tau = 2 mu (F - R) F^T + lam (J - 1) J I   (paper Section 4.1)
+    U = wp.mat33()
+    sig = wp.vec3()
+    V = wp.mat33()
+    wp.svd3(F, U, sig, V)
+    R = U * wp.transpose(V)
+    J = sig[0] * sig[1] * sig[2]
+    return 2.0 * mu * (F - R) * wp.transpose(F) + wp.identity(n=3, dtype=float) * (lam * (J - 1.0) * J)
+
+
+@wp.func
+def safe_log(s: float):
+    return wp.log(wp.max(s, 1.0e-6))
+
+
+@wp.struct
+class Hencky:
+    """F = U exp(diag(eps)) V^T: the principal log (Hencky) strains of F."""
+
+    U: wp.mat33
+    eps: wp.vec3
+    V: wp.mat33
+
+
+@wp.func
+def hencky(F: wp.mat33):
+    U = wp.mat33()
+    sig = wp.vec3()
+    V = wp.mat33()
+    wp.svd3(F, U, sig, V)
+    h = Hencky()
+    h.U = U
+    h.V = V
+    h.eps = wp.vec3(safe_log(sig[0]), safe_log(sig[1]), safe_log(sig[2]))
+    return h
+
+
+@wp.func
+def from_hencky(h: Hencky, eps: wp.vec3):
+    # U exp(diag(eps)) V^T with new principal log strains
+    return h.U * wp.diag(wp.vec3(wp.exp(eps[0]), wp.exp(eps[1]), wp.exp(eps[2]))) * wp.transpose(h.V)
+
+
+@wp.func
+def hencky_kirchhoff(mu: float, lam: float, F: wp.mat33):
+    # St. Venant-Kirchhoff in log strain: tau = U (2 mu eps + lam tr(eps) I) U^T
+    h = hencky(F)
+    tr = h.eps[0] + h.eps[1] + h.eps[2]
+    d = 2.0 * mu * h.eps + wp.vec3(lam * tr)
+    return h.U * wp.diag(d) * wp.transpose(h.U)
