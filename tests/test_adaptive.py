@@ -69,9 +69,10 @@ def test_split_conserves_mass_and_momentum(n, b, seed):
 # --------------------------------------------------------------------------- modes
 
 
-def jelly_scene(mode, boxes=()):
+def jelly_scene(mode, boxes=(), reconstruct=True):
     return abmpm.Scene(
-        simulation=abmpm.SimulationSettings(dx=0.05, fps=20, refinement={"mode": mode, "boxes": list(boxes)}),
+        simulation=abmpm.SimulationSettings(
+            dx=0.05, fps=20, refinement={"mode": mode, "boxes": list(boxes), "reconstruct": reconstruct}),
         materials=[abmpm.Elastic(name="jelly", youngs_modulus=3e4)],
         bodies=[abmpm.SphereBody(material="jelly", center=(0.5, 0.45, 0.5), radius=0.15)],
     )
@@ -93,8 +94,11 @@ def test_adaptive_with_empty_region_is_the_original_run():
 
 
 def test_adaptive_covering_the_domain_behaves_like_finest():
+    # The split itself against finest. Surface reconstruction (on by default) moves
+    # the outer families of this small jelly (3 coarse cells' radius) by ~0.27 h:
+    # the bounce then differs from finest by 6.1% of the peak (docs/validation.md).
     whole = [((0, 0, 0), (1, 1, 1))]
-    ke_a, a = kinetic_energy_curve(jelly_scene("adaptive", whole))
+    ke_a, a = kinetic_energy_curve(jelly_scene("adaptive", whole, reconstruct=False))
     ke_f, _ = kinetic_energy_curve(jelly_scene("finest"))
     ke_o, _ = kinetic_energy_curve(jelly_scene("original"))
     assert np.all(a.particles().level == 1)
@@ -283,7 +287,8 @@ def test_split_children_keep_the_parent_envelope():
     lo, hi = np.array([0.3, 0.3, 0.3]), np.array([0.5, 0.5, 0.5])
     scene = abmpm.Scene(
         simulation=abmpm.SimulationSettings(
-            dx=0.05, fps=20, gravity=(0, 0, 0), refinement={"mode": "adaptive", "boxes": [((0, 0, 0), (1, 1, 1))]}),
+            dx=0.05, fps=20, gravity=(0, 0, 0),
+            refinement={"mode": "adaptive", "boxes": [((0, 0, 0), (1, 1, 1))], "reconstruct": False}),
         materials=[abmpm.Elastic(name="jelly")],
         bodies=[abmpm.BoxBody(material="jelly", min=tuple(lo), max=tuple(hi))],
     )

@@ -30,7 +30,7 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 
 
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
-KERNEL_MODULES = ["abmpm.sim.transfer", "abmpm.sim.colliders", "abmpm.sim.refine", "abmpm.sim.solver"]
+KERNEL_MODULES = ["abmpm.sim.transfer", "abmpm.sim.colliders", "abmpm.sim.reconstruct", "abmpm.sim.refine", "abmpm.sim.solver"]
 
 
 def test_kernels_compile_for_cuda_without_a_gpu():

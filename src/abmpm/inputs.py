@@ -34,6 +34,8 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         walls={f: st.walls.face(f) for f in FACES},
         refine_factor=b if mode == "adaptive" else None,
         base_level=1 if mode == "finest" else 0,
+        reconstruct=st.refinement.reconstruct,
+        surface_threshold=st.refinement.surface_threshold,
     )
 
 

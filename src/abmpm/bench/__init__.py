@@ -93,8 +93,10 @@ def time_modes(scene, frames: int, device: str) -> dict:
     from ..simulation import Simulation
 
     out = {}
-    for mode in ("original", "adaptive", "finest"):
-        sim = Simulation(scene, device=device, mode=mode)
+    plain = scene.model_copy(deep=True)
+    plain.simulation.refinement.reconstruct = False
+    for mode, sc in (("original", scene), ("adaptive", scene), ("adaptive_plain_split", plain), ("finest", scene)):
+        sim = Simulation(sc, device=device, mode=mode.split("_")[0])
         sim.step()  # compile and warm up outside the timing
         counts = []
         t0 = time.perf_counter()
@@ -108,6 +110,8 @@ def time_modes(scene, frames: int, device: str) -> dict:
     out["particle_ratio_finest_over_adaptive"] = round(f["mean_particles"] / a["mean_particles"], 3)
     out["speedup_per_particle_ratio"] = round(out["speedup_adaptive_over_finest"]
                                               / out["particle_ratio_finest_over_adaptive"], 3)
+    # what surface reconstruction adds to an adaptive step (same scene, plain split)
+    out["reconstruction_cost"] = round(out["adaptive_plain_split"]["steps_per_s"] / a["steps_per_s"] - 1.0, 3)
     return out
 
 
@@ -225,7 +229,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
             print(f"{name}: " + "  ".join(f"{m} {r[m]['steps_per_s']} steps/s ({r[m]['mean_particles']} particles)"
                                           for m in ("original", "adaptive", "finest"))
                   + f"  speedup {r['speedup_adaptive_over_finest']} vs particle ratio "
-                  f"{r['particle_ratio_finest_over_adaptive']} -> {r['speedup_per_particle_ratio']}", flush=True)
+                  f"{r['particle_ratio_finest_over_adaptive']} -> {r['speedup_per_particle_ratio']}; "
+                  f"adaptive without reconstruction {r['adaptive_plain_split']['steps_per_s']} steps/s "
+                  f"(reconstruction costs {100 * r['reconstruction_cost']:.1f}%)", flush=True)
     colliders = {}
     if args.suite in ("colliders", "all"):
         colliders = time_collider_overhead(device, args.seconds)

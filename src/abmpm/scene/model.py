@@ -130,6 +130,12 @@ class Refinement(_Strict):
     )
     merge: bool = Field(False, description="merge split families back once they have left the region")
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
+    reconstruct: bool = Field(
+        True, description="surface particle reconstruction after a split (paper Section 4.3); false: plain split"
+    )
+    surface_threshold: float = Field(
+        0.2, gt=0, description="t_p of Eq. 16 in units of (mass of a full coarse cell) / dx"
+    )
 
     @field_validator("boxes")
     @classmethod

@@ -15,9 +15,18 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
+from .reconstruct import (
+    DEFAULT_SURFACE_THRESHOLD,
+    SurfaceField,
+    family_shifts,
+    keep_volume,
+    scatter_surface_mass,
+    smooth_surface_volume,
+)
 from .state import ParticleArrays, ParticleState
 from .transfer import stencil_base
 
@@ -42,6 +51,7 @@ def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0:
 def split_particles(
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
     s: ParticleArrays, colliders: ColliderArrays, g1: GridSpec,
+    reconstruct: int, shift: wp.array(dtype=wp.vec3),
 ):
     p = wp.tid()
     if flag[p] == 0:
@@ -53,6 +63,11 @@ def split_particles(
     Fp = s.F[p]
     ns = b * b * b
     h = wp.pow(s.volume[p], 1.0 / 3.0)  # side of the parent's lattice cube
+    # surface reconstruction (Section 4.3): the whole family moves by shift[p];
+    # velocities stay those of the lattice points, so mass and momentum are the split's
+    family_shift = wp.vec3(0.0)
+    if reconstruct != 0:
+        family_shift = shift[p]
     mc = s.mass[p] / float(ns)
     Vc = s.volume[p] / float(ns)
     parent = s.id[p]
@@ -66,6 +81,7 @@ def split_particles(
         d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
         xc = xp + Fp * (h * d)
         s.v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
+        xc = xc + family_shift
         if colliders.cpic != 0 and surface_body >= 0:
             # A child is never placed across a collider from its parent: near a sheet
             # it stops on the parent's side (its velocity stays that of the lattice
@@ -128,7 +144,8 @@ def allocate_blocks(g: GridSpec, wanted: wp.array3d(dtype=wp.int32), counter: wp
 class Refiner:
     """Owns the refined region and keeps the particles and the fine grid in step with it."""
 
-    def __init__(self, fine: Grid, coarse: Grid, factor: int, device):
+    def __init__(self, fine: Grid, coarse: Grid, factor: int, device, reconstruct: bool = False,
+                 surface_threshold: float = DEFAULT_SURFACE_THRESHOLD):
         self.fine = fine
         self.coarse = coarse
         self.b = factor
@@ -136,6 +153,17 @@ class Refiner:
         cells = tuple(d - 1 for d in coarse.dims)
         self.region_cells = np.zeros(cells, dtype=bool)
         self.region = wp.zeros(cells, dtype=wp.int32, device=device)
+        # surface reconstruction: Eq. 16's node masses and gradients on the coarse grid
+        self.surface = SurfaceField()
+        self.surface.enabled = int(reconstruct)
+        self.surface.threshold = float(surface_threshold)
+        nodes = coarse.capacity if reconstruct else 1
+        self.surface.grad = wp.zeros(nodes, dtype=wp.vec3, device=device)
+        self.surface.volume = wp.zeros(nodes, dtype=float, device=device)
+        self.surface.smooth = wp.zeros(nodes, dtype=float, device=device)
+        self.surface.near = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
+        self._points = wp.HashGrid(64, 64, 64, device=device) if reconstruct else None  # neighbours: who is on top
+        self._shift = wp.zeros(1, dtype=wp.vec3, device=device)
         self.wanted = wp.zeros(fine.spec.blocks.shape, dtype=wp.int32, device=device)
         self.counter = wp.zeros(1, dtype=wp.int32, device=device)
         self._flag = wp.zeros(1, dtype=wp.int32, device=device)
@@ -147,6 +175,10 @@ class Refiner:
         are activated now, with the stencil reach of particles at the region's edge."""
         self.region_cells = np.asarray(cells, dtype=bool)
         self.region.assign(self.region_cells.astype(np.int32))
+        if self.surface.enabled:
+            # who scatters for Eq. 16: particles within the stencil reach (2 cells) of
+            # a node that a splitting parent reads (1 cell beyond the region)
+            self.surface.near.assign(ndimage.binary_dilation(self.region_cells, iterations=3).astype(np.int32))
         wanted = np.zeros(self.wanted.shape, dtype=np.int32)
         idx = np.argwhere(self.region_cells)
         if len(idx):
@@ -165,7 +197,7 @@ class Refiner:
         g.grow(int(self.counter.numpy()[0]))
         return old
 
-    def split(self, state: ParticleState, next_id: int, colliders: ColliderArrays) -> int:
+    def split(self, state: ParticleState, next_id: int, colliders: ColliderArrays, materials: wp.array) -> int:
         """Split the level-0 particles inside the region; returns how many were split."""
         n = state.count
         if n == 0 or not self.region_cells.any():
@@ -181,10 +213,26 @@ class Refiner:
         if n_split == 0:
             return 0
         ns = self.b**3
+        if self.surface.enabled:
+            self.surface.grad.zero_()
+            self.surface.volume.zero_()
+            wp.launch(scatter_surface_mass, dim=n, inputs=[state.arrays(), materials, self.coarse.spec, self.surface],
+                      device=self.device)
+            wp.launch(smooth_surface_volume, dim=self.coarse.node_count, inputs=[self.coarse.spec, self.surface],
+                      device=self.device)
+            self._points.build(state.x[:n], self.coarse.dx)
+            if self._shift.shape[0] < n:
+                self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
+                self._raw_shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
+            wp.launch(family_shifts, dim=n, device=self.device,
+                      inputs=[self._flag, state.arrays(), materials, self.surface, self.coarse.spec, self._points.id,
+                              self._raw_shift])
+            wp.launch(keep_volume, dim=n, device=self.device,
+                      inputs=[self._flag, state.x, self._points.id, 3.0 * self.coarse.dx, self._raw_shift, self._shift])
         state.reserve(n + n_split * (ns - 1))
         wp.launch(split_particles, dim=n, device=self.device,
                   inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), colliders,
-                          self.fine.spec])
+                          self.fine.spec, self.surface.enabled, self._shift])
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split

@@ -4,7 +4,8 @@
 
 1. move the colliders to ``time`` and rebuild their color distance field;
 2. adaptive mode: split the level-0 particles that entered the refined region
-   (Eq. 15) and give the fine grid the blocks its particles need;
+   (Eq. 15), move the children of surface parents onto the parent-level surface
+   (Eqs. 16-20), and give the fine grid the blocks its particles need;
 3. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
 4. grid update: gravity, domain walls, collider contact (Eqs. 3-4, 22);
 5. G2P of each particle from its own level's grid, with boundary velocities at
@@ -33,6 +34,7 @@ from .colliders import (
 )
 from .grid import Grid
 from .materials import MaterialParams
+from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
 from .state import FIELDS, ParticleState
 
@@ -51,6 +53,10 @@ class SolverConfig:
     refine_factor: int | None = None
     # level the single dense grid serves (1 in finest mode, where every particle is fine)
     base_level: int = 0
+    # surface particle reconstruction after each split (paper Section 4.3), and its
+    # t_p (Eq. 16) in units of (mass of a full coarse cell) / dx
+    reconstruct: bool = False
+    surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
 
 
 class MPMSolver:
@@ -67,7 +73,8 @@ class MPMSolver:
             fine = Grid.create(*common, config.dx / config.refine_factor, 1, config.gravity, walls, device,
                                sparse=True)
             self.grids.append(fine)
-            self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device)
+            self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device,
+                                   config.reconstruct, config.surface_threshold)
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
         self.cpic = colliders is not None and bool(colliders.arrays.cpic)
@@ -243,7 +250,7 @@ class MPMSolver:
     def refine(self, state: ParticleState) -> None:
         """Split particles that entered the region (Eq. 15); activate the fine blocks
         the level-1 particles reach."""
-        n_split = self.refiner.split(state, self._next_id, self.collider_arrays)
+        n_split = self.refiner.split(state, self._next_id, self.collider_arrays, self.materials)
         if n_split:
             self._next_id += n_split * self.refiner.b**3
             self.color_particles(state)

@@ -122,6 +122,16 @@ def deform_particle(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: w
 
 
 @wp.func
+def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
+    """J = V / V0 of a particle: det F, or the ``history`` of models without F."""
+    for i in range(wp.static(len(REGISTRY))):
+        if wp.static(not REGISTRY[i].uses_F):
+            if mat.model == i:
+                return history
+    return wp.determinant(F)
+
+
+@wp.func
 def sound_speed_ratio(mat: MaterialParams, history: float):
     """Sound speed over the speed at rest (>= 1) for models that stiffen under
     compression (fluid); 1 for the others."""
@@ -136,4 +146,5 @@ __all__ = [
     "REGISTRY", "MODEL_IDS", "BY_NAME", "MaterialModel", "Parameter", "MaterialParams", "Deformation",
     "material_params", "wave_speed", "uses_deformation_gradient", "lame", "pressure_from_J",
     "kirchhoff_stress", "update_deformation", "particle_stress", "deform_particle", "sound_speed_ratio",
+    "volume_ratio",
 ]

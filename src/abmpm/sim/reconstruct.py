@@ -1,0 +1,237 @@
+"""Surface particle reconstruction (paper Section 4.3, Eqs. 16-20).
+
+A parent split by Eq. 15 puts its b^3 children on the F-deformed sub-lattice of its
+own cube. In the interior that is right. At the surface the parents' own sampling
+jitter, the disorder of a fluid that has flowed, or an F that no longer matches the
+particles' spacing, carries over to the children: a parent that sticks out gives a
+bump of children, one that sits low a dent, and overlapping sub-lattices swell the
+surface (the paper's Figure 5b). Reconstruction moves the children of the parents
+that form the surface so that the children's envelope follows the parent-level
+surface instead.
+
+Our reading of the paper, with the decisions it leaves open (docs/method.md,
+"Surface reconstruction"):
+
+1. **Surface detection (Eq. 16).** Just before a split, every particle within three
+   coarse cells of the refined region (both levels, so material split before counts)
+   scatters its mass gradient m_p grad w_ip (G_i) and its volume V_p J w_ip to the
+   coarse nodes. A parent is a *surface parent* when the node whose box Omega_i
+   (one coarse cell, centred on the node) holds it has |G_i| > t_p (Eq. 18), with
+   t_p = ``surface_threshold`` x rho_p dx^2 (the mass of a full coarse cell of the
+   parent's material per dx).
+2. **Parent-level surface (Eqs. 17, 19).** The level where the occupied fraction of
+   space, interpolated from the node volumes after a light (1 6 1)/8 filter, is
+   1/2: the material boundary of a uniform half-space, smooth on the scale of the
+   coarse kernel, so the parents' jitter and a flowed fluid's disorder do not reach
+   it. Its depth and inward direction at the parent, to first order:
+   d_s = (phi - 1/2) / |grad phi| and N_s = grad phi / |grad phi|.
+3. **Moving the children (Eq. 20).** The family of an *outermost* surface parent
+   (no particle on top of it within a parent spacing) moves rigidly along N_s so
+   that its centre lies half a lattice layer deep, where the outermost centres of
+   a lattice sit on average (the layer spacing along N_s of the parent's
+   F-deformed lattice: a spacing on a face, less on an oblique cut). Protruding
+   families are pulled in, families in a dent pushed out (never by more than a
+   spacing); lower layers, interior parents and lone droplets do not move. A rigid
+   move keeps the family's sub-lattice (children are never projected onto one
+   surface), and with the split's velocities (the parent's affine field about the
+   family's centre) mass and momentum stay exactly those of Eq. 15.
+4. **Keeping the volume.** The smoothed surface of a small or curved body lies
+   inside the true one (by about kernel width^2 / radius). The mean move of the
+   moving families within three coarse cells is taken out of each move, so the
+   surface keeps its place on average and only the jitter goes.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .grid import GridSpec, node_coords, node_index
+from .materials import MaterialParams, volume_ratio
+from .state import ParticleArrays
+from .transfer import bspline_weights, stencil_base, stencil_offset
+
+wp.set_module_options({"enable_backward": False})
+
+DEFAULT_SURFACE_THRESHOLD = 0.2  # t_p in units of (mass of a full coarse cell) / dx
+
+
+@wp.struct
+class SurfaceField:
+    """Eq. 16 on the coarse grid: node masses and mass gradients of both levels."""
+
+    enabled: int
+    threshold: float  # t_p / (rho_p dx^2)
+    grad: wp.array(dtype=wp.vec3)  # G_i of Eq. 16
+    volume: wp.array(dtype=float)  # sum_p w_ip V_p J_p: the occupied volume at the node
+    smooth: wp.array(dtype=float)  # the same, filtered once over the 27 neighbours
+    near: wp.array3d(dtype=wp.int32)  # coarse cells near the refined region: who scatters
+
+
+@wp.func
+def bspline_slopes(fx: wp.vec3):
+    # d/dfx of bspline_weights (rows: node offset 0,1,2; columns: axis), per cell
+    return wp.matrix_from_rows(fx - wp.vec3(1.5), -2.0 * (fx - wp.vec3(1.0)), fx - wp.vec3(0.5))
+
+
+@wp.kernel
+def scatter_surface_mass(s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec, f: SurfaceField):
+    # Eq. 16: G_i = sum_p grad w_ip m_p, and beside it the occupied volume
+    # sum_p w_ip V_p J_p (both levels: every particle belongs to the parent-level field)
+    p = wp.tid()
+    xp = s.x[p]
+    X = (xp - g.origin) * g.inv_dx
+    ci = wp.clamp(int(X[0]), 0, f.near.shape[0] - 1)
+    cj = wp.clamp(int(X[1]), 0, f.near.shape[1] - 1)
+    ck = wp.clamp(int(X[2]), 0, f.near.shape[2] - 1)
+    if f.near[ci, cj, ck] == 0:
+        return
+    base = stencil_base(g, xp)
+    fx = stencil_offset(g, xp, base)
+    w = bspline_weights(fx)
+    dw = bspline_slopes(fx)
+    m = s.mass[p]
+    vol = s.volume[p] * volume_ratio(materials[s.material[p]], s.F[p], s.history[p])
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                grad = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
+                wp.atomic_add(f.grad, n, (m * g.inv_dx) * grad)
+                wp.atomic_add(f.volume, n, vol * w[i, 0] * w[j, 1] * w[k, 2])
+
+
+SIDE = wp.constant(0.125)  # filter weights per axis: (SIDE, 1 - 2 SIDE, SIDE)
+
+
+@wp.func
+def filter_weight(a: int):
+    if a == 1:
+        return 1.0 - 2.0 * SIDE
+    return SIDE
+
+
+@wp.kernel
+def smooth_surface_volume(g: GridSpec, f: SurfaceField):
+    # binomial (1 2 1)^3 / 64 filter of the node volumes: the surface of a disordered
+    # material (a fluid that has flowed) follows its particles' mean, not their noise
+    n = wp.tid()
+    c = node_coords(g, n)
+    acc = float(0.0)
+    for a in range(3):
+        for b in range(3):
+            for e in range(3):
+                i = wp.clamp(c[0] + a - 1, 0, g.dims[0] - 1)
+                j = wp.clamp(c[1] + b - 1, 0, g.dims[1] - 1)
+                k = wp.clamp(c[2] + e - 1, 0, g.dims[2] - 1)
+                wgt = filter_weight(a) * filter_weight(b) * filter_weight(e)
+                acc += wgt * f.volume[node_index(g, i, j, k)]
+    f.smooth[n] = acc
+
+
+@wp.func
+def is_surface_parent(f: SurfaceField, g: GridSpec, xp: wp.vec3, rho_p: float):
+    # Eq. 18: the parent lies in the box Omega_i of its nearest node i; Eq. 16's
+    # |G_i| > t_p makes that node, and so the parent, part of the surface
+    X = (xp - g.origin) * g.inv_dx
+    i = wp.clamp(int(X[0] + 0.5), 0, g.dims[0] - 1)
+    j = wp.clamp(int(X[1] + 0.5), 0, g.dims[1] - 1)
+    k = wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1)
+    G = f.grad[node_index(g, i, j, k)]
+    return wp.length(G) > f.threshold * rho_p * g.dx * g.dx
+
+
+@wp.func
+def covered(points: wp.uint64, x: wp.array(dtype=wp.vec3), p: int, out: wp.vec3, h: float):
+    """Whether another particle lies on top of particle p: within a cylinder of
+    radius 0.75 h from 0.5 h to 1.5 h along the outward normal ``out``."""
+    xp = x[p]
+    query = wp.hash_grid_query(points, xp, 1.7 * h)
+    q = int(0)
+    while wp.hash_grid_query_next(query, q):
+        if q != p:
+            d = x[q] - xp
+            u = wp.dot(d, out)
+            if u > 0.5 * h and u < 1.5 * h and wp.length(d - u * out) < 0.75 * h:
+                return True
+    return False
+
+
+@wp.kernel
+def family_shifts(flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: wp.array(dtype=MaterialParams),
+                  f: SurfaceField, g: GridSpec, points: wp.uint64, shift: wp.array(dtype=wp.vec3)):
+    """Rigid displacement of the family of each parent about to split (Eqs. 17-20,
+    see the module docstring): an outermost family's centre goes half a spacing
+    inside the parent-level surface. Zero for interior parents, for lower layers (a
+    family with another particle on top of it that sits too deep) and far from any
+    surface. Computed before the split, which overwrites the parents."""
+    p = wp.tid()
+    shift[p] = wp.vec3(0.0)
+    if flag[p] == 0:
+        return
+    xp = s.x[p]
+    J = volume_ratio(materials[s.material[p]], s.F[p], s.history[p])
+    h = wp.pow(s.volume[p] * wp.abs(J), 1.0 / 3.0)  # current lattice spacing of the parent
+    if not is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J)):
+        return
+    base = stencil_base(g, xp)
+    fx = stencil_offset(g, xp, base)
+    w = bspline_weights(fx)
+    dw = bspline_slopes(fx)
+    phi = float(0.0)  # occupied fraction of space, interpolated from the smoothed nodes
+    grad = wp.vec3(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                v = f.smooth[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
+                phi += w[i, 0] * w[j, 1] * w[k, 2] * v
+                grad += v * wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
+    cell = g.dx * g.dx * g.dx
+    phi = phi / cell
+    grad = grad * (g.inv_dx / cell)
+    slope = wp.length(grad)
+    # a surface takes phi from 1 to 0 over a few cells; a much flatter phi is noise
+    if slope < 0.05 * g.inv_dx:
+        return
+    N = grad / slope  # N_s, inwards (Eq. 19)
+    depth = (phi - 0.5) / slope  # d_s > 0 inside (Eq. 17, first order)
+    if depth < -g.dx:
+        return  # far outside the smoothed surface (a lone droplet): leave it
+    # The outermost centres of a lattice cut by a plane sit on average half a layer
+    # spacing deep. The parent lattice is F h0 Z^3 (h0 = V0^(1/3), scaled by the J a
+    # model keeps outside F); its heights along N are h0 m . u with u = F^T N, so its
+    # layers are h0 |u| / |u/|u||_1 apart: h on a face, h / sqrt(3) on a (111) cut.
+    # Aiming there keeps the volume of oblique and curved surfaces.
+    u = wp.transpose(s.F[p]) * N
+    ul = wp.length(u)
+    h0 = wp.pow(s.volume[p] * wp.abs(J / wp.determinant(s.F[p])), 1.0 / 3.0)
+    layer = h0 * ul * ul / (wp.abs(u[0]) + wp.abs(u[1]) + wp.abs(u[2]))
+    gap = 0.5 * layer - depth  # > 0: the family sits too far out by gap; < 0: too deep
+    if gap < -layer or (gap < 0.0 and covered(points, s.x, p, -N, h)):
+        return  # a lower layer: the family on top of it forms the surface
+    shift[p] = wp.clamp(gap, -h, h) * N  # Eq. 20; a family never moves by more than a spacing
+
+
+@wp.kernel
+def keep_volume(flag: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), points: wp.uint64, radius: float,
+                shift: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    """Take out of each family's move the mean move of the moving families within
+    ``radius`` (along its own direction): what remains is the jitter the move
+    removes, and the surface keeps its place on average. The smoothed surface of a
+    small or curved body lies inside the true one (by ~ kernel width^2 / radius);
+    without this a sphere of 3 cells' radius lost 3% of its volume."""
+    p = wp.tid()
+    sp = shift[p]
+    out[p] = sp
+    if flag[p] == 0 or wp.length(sp) == 0.0:
+        return
+    N = wp.normalize(sp)
+    total = float(0.0)
+    count = float(0.0)
+    query = wp.hash_grid_query(points, x[p], radius)
+    q = int(0)
+    while wp.hash_grid_query_next(query, q):
+        sq = shift[q]
+        if flag[q] != 0 and wp.length(sq) > 0.0 and wp.length(x[q] - x[p]) < radius:
+            total += wp.dot(sq, N)
+            count += 1.0
+    out[p] = sp - (total / count) * N
