@@ -14,3 +14,10 @@ def cuda_available():
 
     init_warp()
     return wp.get_cuda_device_count() > 0
+
+
+# Under pytest-xdist every worker is a process of its own: give each an equal share
+# of the cores for the solver's CPU threads (tests that measure threading set theirs).
+if "PYTEST_XDIST_WORKER_COUNT" in os.environ and "ABMPM_THREADS" not in os.environ:
+    _workers = int(os.environ["PYTEST_XDIST_WORKER_COUNT"])
+    os.environ["ABMPM_THREADS"] = str(max(1, (os.cpu_count() or 1) // _workers))

@@ -78,10 +78,23 @@ def _stderr():
 # --------------------------------------------------------------------------- commands
 
 
+def _threads_arg(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--threads {value!r}: expected a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--threads {value}: at least 1")
+    return n
+
+
 def _cmd_run(args) -> int:
     from abmpm.runner import run
     from abmpm.scene.loader import load_scene
     from abmpm.scene.model import with_mode
+
+    if args.threads:
+        os.environ["ABMPM_THREADS"] = str(args.threads)  # read by the solver's launcher
 
     scene = load_scene(args.scene)
     if args.mode:
@@ -264,6 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in the output folder")
     r.add_argument("--no-preview", action="store_true", help="do not render preview.mp4 / preview.png")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+    r.add_argument("--threads", "-j", type=_threads_arg, metavar="N",
+                   help="CPU threads for the step (default: $ABMPM_THREADS, else every core)")
     r.set_defaults(func=_cmd_run)
 
     s = sub.add_parser("scenes", help="list the built-in scenes")

@@ -8,15 +8,19 @@ the figure that matters is a ratio taken on one (noisy) machine.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+from ..sim.parallel import THREADS_ENV, default_threads
 
 # (particles, grid cells per side) of the issue's fluid benchmark
 FLUID_CASES = {"cpu": [(100_000, 64), (400_000, 128)], "cuda": [(100_000, 64), (400_000, 128), (1_000_000, 128)]}
@@ -100,18 +104,20 @@ def time_modes(scene, frames: int, device: str) -> dict:
         sim.step()  # compile and warm up outside the timing
         counts = []
         t0 = time.perf_counter()
-        steps0 = sim.steps
+        steps0, recon0 = sim.steps, sim.solver.reconstruction_seconds
         sim.advance(frames=frames, callback=lambda s: counts.append(s.particle_count))
         wall = time.perf_counter() - t0
         out[mode] = {"steps_per_s": round((sim.steps - steps0) / wall, 2), "mean_particles": int(np.mean(counts)),
-                     "steps": sim.steps - steps0, "wall_s": round(wall, 2)}
+                     "steps": sim.steps - steps0, "wall_s": round(wall, 2),
+                     "reconstruction_s": round(sim.solver.reconstruction_seconds - recon0, 3)}
     a, f = out["adaptive"], out["finest"]
     out["speedup_adaptive_over_finest"] = round(a["steps_per_s"] / f["steps_per_s"], 3)
     out["particle_ratio_finest_over_adaptive"] = round(f["mean_particles"] / a["mean_particles"], 3)
     out["speedup_per_particle_ratio"] = round(out["speedup_adaptive_over_finest"]
                                               / out["particle_ratio_finest_over_adaptive"], 3)
-    # what surface reconstruction adds to an adaptive step (same scene, plain split)
-    out["reconstruction_cost"] = round(out["adaptive_plain_split"]["steps_per_s"] / a["steps_per_s"] - 1.0, 3)
+    # what surface reconstruction adds to an adaptive step: its share of the run's
+    # time (the plain-split run takes other time steps, so its steps/s is only a hint)
+    out["reconstruction_cost"] = round(a["reconstruction_s"] / (a["wall_s"] - a["reconstruction_s"]), 3)
     return out
 
 
@@ -185,6 +191,35 @@ def run_reference(script: Path, n: int, grid: int, device: str) -> float | None:
     return None
 
 
+@contextmanager
+def threads_env(n: int):
+    """ABMPM_THREADS=n while building a simulation (its solver reads it)."""
+    old = os.environ.get(THREADS_ENV)
+    os.environ[THREADS_ENV] = str(n)
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(THREADS_ENV, None)
+        else:
+            os.environ[THREADS_ENV] = old
+
+
+def run_numba(reference: Path, n: int, grid: int, threads: int) -> float | None:
+    """steps/s of the multi-core numba yardstick beside the reference (needs numba:
+    ``pip install 'abmpm[bench]'``), or None."""
+    script = reference.parent / "mls_mpm_numba_threads.py"
+    if importlib.util.find_spec("numba") is None or not script.exists():
+        return None
+    cmd = [sys.executable, str(script), "--n", str(n), "--grid", str(grid), "--threads", str(threads)]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=script.parent)
+    for line in out.stdout.splitlines():
+        if line.startswith("RESULT "):
+            return float(json.loads(line[7:])["steps_per_s"])
+    print(f"numba yardstick failed: {out.stderr.strip()[-400:]}", file=sys.stderr)
+    return None
+
+
 def run_bench(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="abmpm bench", description=__doc__)
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
@@ -194,6 +229,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "all"], default="all")
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
+    ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
     args = ap.parse_args(argv or [])
 
     from ..simulation import Simulation, choose_device
@@ -205,20 +241,35 @@ def run_bench(argv: list[str] | None = None) -> dict:
     if args.suite not in ("fluid", "all"):
         cases = []
     rows = []
+    threads = args.threads or default_threads()
     for n, grid in cases:
-        sim = Simulation(fluid_block_scene(n, grid), device=device)
-        sps, steps = time_simulation(sim, args.seconds)
+        sps1 = None
+        if kind == "cpu" and threads > 1:  # thread scaling: the same case on one thread first
+            with threads_env(1):
+                sim = Simulation(fluid_block_scene(n, grid), device=device)
+                sps1, _ = time_simulation(sim, args.seconds)
+                del sim
+        with threads_env(threads):
+            sim = Simulation(fluid_block_scene(n, grid), device=device)
+            sps, steps = time_simulation(sim, args.seconds)
         ref = run_reference(reference, n, grid, device) if reference else None
+        yard = run_numba(reference, n, grid, threads) if reference and kind == "cpu" else None
         row = {
             "case": f"fluid block {sim.particle_count} particles, {grid}^3",
-            "particles": sim.particle_count, "grid": grid, "abmpm_steps_per_s": round(sps, 2),
+            "particles": sim.particle_count, "grid": grid, "threads": threads if kind == "cpu" else None,
+            "abmpm_steps_per_s": round(sps, 2), "abmpm_one_thread_steps_per_s": round(sps1, 2) if sps1 else None,
+            "thread_speedup": round(sps / sps1, 3) if sps1 else None,
             "timed_steps": steps, "reference_steps_per_s": ref,
             "ratio": round(sps / ref, 3) if ref else None,
+            "one_thread_ratio": round(sps1 / ref, 3) if ref and sps1 else None,
+            "numba_steps_per_s": yard, "ratio_to_numba": round(sps / yard, 3) if yard else None,
         }
         rows.append(row)
         print(
-            f"{row['case']:<40} abmpm {sps:8.2f} steps/s   reference "
-            f"{(f'{ref:8.2f}' if ref else '     n/a')} steps/s   ratio {row['ratio']}",
+            f"{row['case']:<40} abmpm {sps:8.2f} steps/s ({threads} threads; 1 thread "
+            f"{(f'{sps1:.2f}' if sps1 else 'n/a')}, x{row['thread_speedup']})   reference "
+            f"{(f'{ref:8.2f}' if ref else '     n/a')} steps/s   ratio {row['ratio']} (1 thread {row['one_thread_ratio']})"
+            f"   numba {threads} threads {yard if yard else 'n/a'} -> {row['ratio_to_numba']}",
             flush=True,
         )
         del sim

@@ -13,6 +13,8 @@ rounding of the products). Children remember their parent's id (``family``).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import warp as wp
 from scipy import ndimage
@@ -164,6 +166,7 @@ class Refiner:
         self.surface.near = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
         self._points = wp.HashGrid(64, 64, 64, device=device) if reconstruct else None  # neighbours: who is on top
         self._shift = wp.zeros(1, dtype=wp.vec3, device=device)
+        self.reconstruct_seconds = 0.0  # CPU time spent reconstructing (for the benchmark)
         self.wanted = wp.zeros(fine.spec.blocks.shape, dtype=wp.int32, device=device)
         self.counter = wp.zeros(1, dtype=wp.int32, device=device)
         self._flag = wp.zeros(1, dtype=wp.int32, device=device)
@@ -214,6 +217,7 @@ class Refiner:
             return 0
         ns = self.b**3
         if self.surface.enabled:
+            t0 = time.perf_counter()
             self.surface.grad.zero_()
             self.surface.volume.zero_()
             wp.launch(scatter_surface_mass, dim=n, inputs=[state.arrays(), materials, self.coarse.spec, self.surface],
@@ -229,6 +233,8 @@ class Refiner:
                               self._raw_shift])
             wp.launch(keep_volume, dim=n, device=self.device,
                       inputs=[self._flag, state.x, self._points.id, 3.0 * self.coarse.dx, self._raw_shift, self._shift])
+            if wp.get_device(self.device).is_cpu:  # CPU launches are synchronous: this is the work itself
+                self.reconstruct_seconds += time.perf_counter() - t0
         state.reserve(n + n_split * (ns - 1))
         wp.launch(split_particles, dim=n, device=self.device,
                   inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), colliders,

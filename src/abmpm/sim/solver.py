@@ -34,6 +34,7 @@ from .colliders import (
 )
 from .grid import Grid
 from .materials import MaterialParams
+from .parallel import Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
 from .state import FIELDS, ParticleState
@@ -57,6 +58,8 @@ class SolverConfig:
     # t_p (Eq. 16) in units of (mass of a full coarse cell) / dx
     reconstruct: bool = False
     surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
+    # CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored
+    threads: int | None = None
 
 
 class MPMSolver:
@@ -64,6 +67,7 @@ class MPMSolver:
                  colliders: ColliderSet | None = None):
         self.config = config
         self.device = device
+        self.launcher = Launcher(device, config.threads)
         self.materials = wp.array(materials, dtype=MaterialParams, device=device)
         walls = {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}
         common = (config.domain_lo, config.domain_hi)
@@ -90,9 +94,10 @@ class MPMSolver:
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ
         self._cmask = self._no_occ
-        # [max speed, max sound-speed stiffening], written by G2P (atomic max)
-        self.signal = wp.array([0.0, 1.0], dtype=float, device=device)
-        self._signal_at_rest = wp.array([0.0, 1.0], dtype=float, device=device)
+        # [max speed, max sound-speed stiffening] per CPU thread, written by G2P (atomic max)
+        at_rest = np.tile([0.0, 1.0], self.launcher.threads)
+        self.signal = wp.array(at_rest, dtype=float, device=device)
+        self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
 
     # ------------------------------------------------------------------ questions
 
@@ -124,6 +129,11 @@ class MPMSolver:
         """The refined coarse cells B_s (bool, one per coarse cell; a copy), or None
         without a fine level."""
         return None if self.refiner is None else self.refiner.region_cells.copy()
+
+    @property
+    def reconstruction_seconds(self) -> float:
+        """CPU seconds spent in surface reconstruction so far (0 on CUDA or without it)."""
+        return self.refiner.reconstruct_seconds if self.refiner is not None else 0.0
 
     @property
     def next_id(self) -> int:
@@ -164,11 +174,13 @@ class MPMSolver:
         store = len(self.grids) > 1 and not g.sparse
         if store and self._tau.shape[0] < s.count:
             self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
-        wp.launch(
-            transfer.P2G[self.cpic, g.sparse, only_level >= 0], dim=s.count, device=self.device,
-            inputs=[s.arrays(), self._cmask_for(s), self.materials, g.spec, g.color, dt, self._tau, int(store), only_level, overlap,
-                    self._occupied(g), g.mv, g.m],
-        )
+        # each CPU thread scatters into its own accumulators, added up afterwards
+        grids = self.launcher.private_grids(g.level, g.mv, g.m)
+        common = [s.arrays(), self._cmask_for(s), self.materials, g.spec, g.color, dt, self._tau, int(store),
+                  only_level, overlap, self._occupied(g)]
+        parts = self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], s.count,
+                                     lambda part, first, count: [*common, *grids[part]])
+        self.launcher.gather(g.level, g.mv, g.m, parts, g.node_count)
 
     def _cmask_for(self, s: ParticleState):
         # per-particle compatibility mask, written by P2G and read by G2P (CPIC only)
@@ -187,23 +199,20 @@ class MPMSolver:
         return self._no_occ
 
     def _grid_update(self, g: Grid, dt: float) -> None:
-        if g.node_count:
-            wp.launch(transfer.grid_update, dim=g.node_count, device=self.device,
-                      inputs=[g.spec, self.collider_arrays, g.color, dt, g.mv, g.m, g.v, self._occupied(g),
+        self.launcher.launch(transfer.grid_update, g.node_count,
+                             [g.spec, self.collider_arrays, g.color, dt, g.mv, g.m, g.v, self._occupied(g),
                               int(self.refiner is not None and not g.sparse)])
 
     def _g2p(self, s: ParticleState, g: Grid, dt: float) -> None:
-        wp.launch(
-            transfer.G2P[self.cpic, g.sparse], dim=s.count, device=self.device,
-            inputs=[self.materials, g.spec, self.collider_arrays, g.color, dt, g.v,
-                    s.arrays(), self._cmask_for(s), self.signal],
-        )
+        common = [self.materials, g.spec, self.collider_arrays, g.color, dt, g.v, s.arrays(), self._cmask_for(s)]
+        self.launcher.launch(transfer.G2P[self.cpic, g.sparse], s.count,
+                             lambda part, first, count: [*common, self.signal[2 * part: 2 * part + 2]])
 
     def last_signal(self) -> tuple[float, float]:
         """After the last step: the fastest particle's speed (m/s; 1e30 if a velocity
         was not finite) and the largest factor by which compression raised a fluid's
         sound speed. One small read from the device: the CFL time step follows them."""
-        a = self.signal.numpy()
+        a = self.signal.numpy().reshape(-1, 2).max(axis=0)
         return float(a[0]), float(a[1])
 
     def adopt(self, state: ParticleState) -> None:

@@ -77,6 +77,7 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
 def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
     @wp.kernel
     def p2g(
+        first: int,  # this launch's first particle (sim/parallel.py)
         s: ParticleArrays,
         cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
@@ -101,7 +102,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         # particles (``only_level`` 1, ``overlap`` 2) then add to those nodes only:
         # the overlap where the coarse particles can feel them (Eq. 8). Elsewhere
         # nobody gathers from the coarse grid.
-        p = wp.tid()
+        p = wp.tid() + first
         if wp.static(overlap_pass):
             if s.level[p] != only_level:
                 return
@@ -192,6 +193,7 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
 
 @wp.kernel
 def grid_update(
+    first: int,  # this launch's first node (sim/parallel.py)
     g: GridSpec,
     colliders: ColliderArrays,
     color: ColorField,
@@ -204,7 +206,7 @@ def grid_update(
 ):
     # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
     # clears the P2G accumulators for the next step so the grid is swept once.
-    n = wp.tid()
+    n = wp.tid() + first
     m = grid_m[n]
     vi = wp.vec3(0.0)
     if m > 0.0:
@@ -233,6 +235,7 @@ def grid_update(
 def _make_g2p(cpic: bool, sparse: bool):
     @wp.kernel
     def g2p(
+        first: int,  # this launch's first particle (sim/parallel.py)
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
         colliders: ColliderArrays,
@@ -245,7 +248,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         signal: wp.array(dtype=float),
     ):
         # Eqs. 11-12: a particle gathers from its own level's grid only
-        p = wp.tid()
+        p = wp.tid() + first
         if s.level[p] != g.level:
             return
         xp = s.x[p]
