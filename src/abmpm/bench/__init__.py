@@ -241,6 +241,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     if args.suite not in ("fluid", "all"):
         cases = []
     rows = []
+    if args.threads:
+        os.environ[THREADS_ENV] = str(args.threads)  # every simulation of this run
     threads = args.threads or default_threads()
     for n, grid in cases:
         sps1 = None
