@@ -78,14 +78,8 @@ def _stderr():
 # --------------------------------------------------------------------------- commands
 
 
-def _threads_arg(value: str) -> int:
-    try:
-        n = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--threads {value!r}: expected a whole number") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"--threads {value}: at least 1")
-    return n
+def _threads_arg(text: str) -> int:
+    return _positive_int(text, "threads")
 
 
 def _cmd_run(args) -> int:
@@ -243,14 +237,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_ERROR, f"abmpm: error: {message} (see: {self.prog} --help)\n")
 
 
-def _frames_arg(text: str) -> int:
+def _positive_int(text: str, what: str) -> int:
     try:
         n = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
     if n < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
     return n
+
+
+def _frames_arg(text: str) -> int:
+    return _positive_int(text, "frames")
 
 
 def build_parser() -> argparse.ArgumentParser:

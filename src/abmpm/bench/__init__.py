@@ -181,14 +181,18 @@ def default_reference() -> Path | None:
     return None
 
 
-def run_reference(script: Path, n: int, grid: int, device: str) -> float | None:
-    cmd = [sys.executable, str(script), "--n", str(n), "--grid", str(grid), "--device", device]
-    out = subprocess.run(cmd, capture_output=True, text=True, cwd=script.parent)
+def _steps_per_s(script: Path, args: list[str], what: str) -> float | None:
+    """Run a yardstick script and read the steps/s from its ``RESULT {json}`` line."""
+    out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, cwd=script.parent)
     for line in out.stdout.splitlines():
         if line.startswith("RESULT "):
             return float(json.loads(line[7:])["steps_per_s"])
-    print(f"reference run failed: {out.stderr.strip()[-400:]}", file=sys.stderr)
+    print(f"{what} run failed: {out.stderr.strip()[-400:]}", file=sys.stderr)
     return None
+
+
+def run_reference(script: Path, n: int, grid: int, device: str) -> float | None:
+    return _steps_per_s(script, ["--n", str(n), "--grid", str(grid), "--device", device], "reference")
 
 
 @contextmanager
@@ -211,13 +215,7 @@ def run_numba(reference: Path, n: int, grid: int, threads: int) -> float | None:
     script = reference.parent / "mls_mpm_numba_threads.py"
     if importlib.util.find_spec("numba") is None or not script.exists():
         return None
-    cmd = [sys.executable, str(script), "--n", str(n), "--grid", str(grid), "--threads", str(threads)]
-    out = subprocess.run(cmd, capture_output=True, text=True, cwd=script.parent)
-    for line in out.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return float(json.loads(line[7:])["steps_per_s"])
-    print(f"numba yardstick failed: {out.stderr.strip()[-400:]}", file=sys.stderr)
-    return None
+    return _steps_per_s(script, ["--n", str(n), "--grid", str(grid), "--threads", str(threads)], "numba yardstick")
 
 
 def run_bench(argv: list[str] | None = None) -> dict:
