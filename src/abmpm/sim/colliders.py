@@ -252,10 +252,10 @@ def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new:
 
 
 @wp.kernel
-def color_particles(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), colliders: ColliderArrays,
+def color_particles(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), colliders: ColliderArrays,
                      g: GridSpec, f: ColorField,
                      surface_point: wp.array(dtype=wp.vec3), surface_side: wp.array(dtype=wp.vec3), surface_body: wp.array(dtype=wp.int32)):
-    p = wp.tid()
+    p = wp.tid() + first
     if level[p] != g.level:
         return
     c = Color()

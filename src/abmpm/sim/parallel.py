@@ -69,6 +69,7 @@ class Launcher:
         self.threads = 1 if self.device.is_cuda else max(1, int(threads or default_threads()))
         self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="abmpm") if self.threads > 1 else None
         self._private: dict[int, list[tuple[wp.array, wp.array]]] = {}
+        self._warm: set = set()  # (kernel, argument types) launched once already
 
     def ranges(self, n: int) -> list[tuple[int, int]]:
         """(first, count) of each thread's part of ``range(n)``, in order."""
@@ -89,10 +90,15 @@ class Launcher:
             first, count = parts[part]
             wp.launch(kernel, dim=count, inputs=[first, *make(part, first, count)], device=self.device)
 
-        if len(parts) == 1:
-            run(0)
-            return 1
-        kernel.module.load(self.device)  # compile before the threads start
+        # The first launch of a kernel (for a generic one, of each argument type)
+        # compiles or specialises it: that must not happen on two threads at once.
+        key = (kernel, tuple(type(getattr(a, "dtype", a)) if not isinstance(a, wp.array) else a.dtype
+                             for a in make(0, *parts[0])))
+        if len(parts) == 1 or key not in self._warm:
+            self._warm.add(key)
+            for part in range(len(parts)):
+                run(part)
+            return len(parts)
         futures = [self._pool.submit(run, part) for part in range(1, len(parts))]
         run(0)
         for f in futures:

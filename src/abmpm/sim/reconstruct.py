@@ -111,10 +111,10 @@ def filter_weight(a: int):
 
 
 @wp.kernel
-def smooth_surface_volume(g: GridSpec, f: SurfaceField):
+def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField):
     # binomial (1 2 1)^3 / 64 filter of the node volumes: the surface of a disordered
     # material (a fluid that has flowed) follows its particles' mean, not their noise
-    n = wp.tid()
+    n = wp.tid() + first
     c = node_coords(g, n)
     acc = float(0.0)
     for a in range(3):
@@ -157,14 +157,14 @@ def covered(points: wp.uint64, x: wp.array(dtype=wp.vec3), p: int, out: wp.vec3,
 
 
 @wp.kernel
-def family_shifts(flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: wp.array(dtype=MaterialParams),
+def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: wp.array(dtype=MaterialParams),
                   f: SurfaceField, g: GridSpec, points: wp.uint64, shift: wp.array(dtype=wp.vec3)):
     """Rigid displacement of the family of each parent about to split (Eqs. 17-20,
     see the module docstring): an outermost family's centre goes half a spacing
     inside the parent-level surface. Zero for interior parents, for lower layers (a
     family with another particle on top of it that sits too deep) and far from any
     surface. Computed before the split, which overwrites the parents."""
-    p = wp.tid()
+    p = wp.tid() + first
     shift[p] = wp.vec3(0.0)
     if flag[p] == 0:
         return
@@ -212,14 +212,14 @@ def family_shifts(flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: 
 
 
 @wp.kernel
-def keep_volume(flag: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), points: wp.uint64, radius: float,
+def keep_volume(first: int, flag: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), points: wp.uint64, radius: float,
                 shift: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
     """Take out of each family's move the mean move of the moving families within
     ``radius`` (along its own direction): what remains is the jitter the move
     removes, and the surface keeps its place on average. The smoothed surface of a
     small or curved body lies inside the true one (by ~ kernel width^2 / radius);
     without this a sphere of 3 cells' radius lost 3% of its volume."""
-    p = wp.tid()
+    p = wp.tid() + first
     sp = shift[p]
     out[p] = sp
     if flag[p] == 0 or wp.length(sp) == 0.0:

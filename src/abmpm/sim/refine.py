@@ -21,6 +21,7 @@ from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
+from .parallel import Launcher
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
     SurfaceField,
@@ -36,9 +37,9 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0: GridSpec,
+def flag_splits(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0: GridSpec,
                 region: wp.array3d(dtype=wp.int32), flag: wp.array(dtype=wp.int32)):
-    p = wp.tid()
+    p = wp.tid() + first
     flag[p] = 0
     if level[p] != 0:
         return
@@ -51,11 +52,12 @@ def flag_splits(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g0:
 
 @wp.kernel
 def split_particles(
+    first_parent: int,  # this launch's first particle (sim/parallel.py)
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
     s: ParticleArrays, colliders: ColliderArrays, g1: GridSpec,
     reconstruct: int, shift: wp.array(dtype=wp.vec3),
 ):
-    p = wp.tid()
+    p = wp.tid() + first_parent
     if flag[p] == 0:
         return
     # read the parent before child 0 overwrites it
@@ -116,9 +118,10 @@ ACTIVATION_MARGIN = wp.constant(2)
 
 
 @wp.kernel
-def flag_particle_blocks(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
+def flag_particle_blocks(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
                          wanted: wp.array3d(dtype=wp.int32)):
-    p = wp.tid()
+    # several threads may write the same 1: a benign race
+    p = wp.tid() + first
     if level[p] != g.level:
         return
     base = stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN)
@@ -147,7 +150,8 @@ class Refiner:
     """Owns the refined region and keeps the particles and the fine grid in step with it."""
 
     def __init__(self, fine: Grid, coarse: Grid, factor: int, device, reconstruct: bool = False,
-                 surface_threshold: float = DEFAULT_SURFACE_THRESHOLD):
+                 surface_threshold: float = DEFAULT_SURFACE_THRESHOLD, launcher: Launcher | None = None):
+        self.launcher = launcher or Launcher(device, 1)
         self.fine = fine
         self.coarse = coarse
         self.b = factor
@@ -208,8 +212,7 @@ class Refiner:
         if self._flag.shape[0] < n:
             self._flag = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
             self._offset = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
-        wp.launch(flag_splits, dim=n, inputs=[state.x, state.level, self.coarse.spec, self.region],
-                  outputs=[self._flag], device=self.device)
+        self.launcher.launch(flag_splits, n, [state.x, state.level, self.coarse.spec, self.region, self._flag])
         wp.utils.array_scan(self._flag, self._offset, inclusive=False)
         last = self._offset.numpy()[n - 1] + self._flag.numpy()[n - 1]  # host sync: the new count
         n_split = int(last)
@@ -222,23 +225,20 @@ class Refiner:
             self.surface.volume.zero_()
             wp.launch(scatter_surface_mass, dim=n, inputs=[state.arrays(), materials, self.coarse.spec, self.surface],
                       device=self.device)
-            wp.launch(smooth_surface_volume, dim=self.coarse.node_count, inputs=[self.coarse.spec, self.surface],
-                      device=self.device)
+            self.launcher.launch(smooth_surface_volume, self.coarse.node_count, [self.coarse.spec, self.surface])
             self._points.build(state.x[:n], self.coarse.dx)
             if self._shift.shape[0] < n:
                 self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
                 self._raw_shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
-            wp.launch(family_shifts, dim=n, device=self.device,
-                      inputs=[self._flag, state.arrays(), materials, self.surface, self.coarse.spec, self._points.id,
-                              self._raw_shift])
-            wp.launch(keep_volume, dim=n, device=self.device,
-                      inputs=[self._flag, state.x, self._points.id, 3.0 * self.coarse.dx, self._raw_shift, self._shift])
+            self.launcher.launch(family_shifts, n, [self._flag, state.arrays(), materials, self.surface,
+                                                    self.coarse.spec, self._points.id, self._raw_shift])
+            self.launcher.launch(keep_volume, n, [self._flag, state.x, self._points.id, 3.0 * self.coarse.dx,
+                                                  self._raw_shift, self._shift])
             if wp.get_device(self.device).is_cpu:  # CPU launches are synchronous: this is the work itself
                 self.reconstruct_seconds += time.perf_counter() - t0
         state.reserve(n + n_split * (ns - 1))
-        wp.launch(split_particles, dim=n, device=self.device,
-                  inputs=[self._flag, self._offset, n, self.b, next_id, state.arrays(), colliders,
-                          self.fine.spec, self.surface.enabled, self._shift])
+        self.launcher.launch(split_particles, n, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
+                                                  colliders, self.fine.spec, self.surface.enabled, self._shift])
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split
@@ -246,8 +246,7 @@ class Refiner:
     def activate(self, state: ParticleState) -> int:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones;
         returns the first new slot."""
-        wp.launch(flag_particle_blocks, dim=state.count, inputs=[state.x, state.level, self.fine.spec],
-                  outputs=[self.wanted], device=self.device)
+        self.launcher.launch(flag_particle_blocks, state.count, [state.x, state.level, self.fine.spec, self.wanted])
         return self._allocate()
 
 

@@ -78,7 +78,7 @@ class MPMSolver:
                                sparse=True)
             self.grids.append(fine)
             self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device,
-                                   config.reconstruct, config.surface_threshold)
+                                   config.reconstruct, config.surface_threshold, self.launcher)
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
         self.cpic = colliders is not None and bool(colliders.arrays.cpic)
@@ -243,9 +243,9 @@ class MPMSolver:
         if self.colliders is None or not self.cpic:
             return
         for g in self.grids:
-            wp.launch(color_particles, dim=state.count, device=self.device,
-                      inputs=[state.x, state.level, self.collider_arrays, g.spec, g.color],
-                      outputs=[state.surface_point, state.surface_side, state.surface_body])
+            self.launcher.launch(color_particles, state.count,
+                                 [state.x, state.level, self.collider_arrays, g.spec, g.color,
+                                  state.surface_point, state.surface_side, state.surface_body])
 
     # ------------------------------------------------------------------ refinement
 
@@ -281,26 +281,26 @@ class MPMSolver:
             return
         keys = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         perm = wp.empty(2 * n, dtype=wp.int32, device=self.device)
-        wp.launch(_cell_keys, dim=n, inputs=[state.x, self.grid.spec], outputs=[keys, perm], device=self.device)
+        self.launcher.launch(_cell_keys, n, [state.x, self.grid.spec, keys, perm])
         wp.utils.radix_sort_pairs(keys, perm, n)
         for name in FIELDS:
             src = getattr(state, name)
             tmp = wp.empty(n, dtype=src.dtype, device=self.device)
-            wp.launch(_gather, dim=n, inputs=[src, perm], outputs=[tmp], device=self.device)
+            self.launcher.launch(_gather, n, [src, perm, tmp])
             wp.copy(src, tmp, count=n)
 
 
 @wp.kernel
-def _cell_keys(x: wp.array(dtype=wp.vec3), g: transfer.GridSpec, keys: wp.array(dtype=wp.int32),
+def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), g: transfer.GridSpec, keys: wp.array(dtype=wp.int32),
                perm: wp.array(dtype=wp.int32)):
-    p = wp.tid()
+    p = wp.tid() + first
     b = transfer.stencil_base(g, x[p])
     keys[p] = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
     perm[p] = p
 
 
 @wp.kernel
-def _gather(src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.array(dtype=Any)):
-    p = wp.tid()
+def _gather(first: int, src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.array(dtype=Any)):
+    p = wp.tid() + first
     dst[p] = src[perm[p]]
 
