@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, Strict, create_model, field_v
 
 from ..sim.materials import REGISTRY as MATERIAL_MODELS
 from ..sim.materials.base import MaterialModel
+from ..sim.reconstruct import DEFAULT_SURFACE_THRESHOLD
 
 # Types are strict (a string is not a number, 1 is not true) except that an integer is
 # a valid float (TOML ``dx = 1``) and containers are lax: a vector may be a TOML list or
@@ -134,7 +135,7 @@ class Refinement(_Strict):
         True, description="surface particle reconstruction after a split (paper Section 4.3); false: plain split"
     )
     surface_threshold: float = Field(
-        0.2, gt=0, description="t_p of Eq. 16 in units of (mass of a full coarse cell) / dx"
+        DEFAULT_SURFACE_THRESHOLD, gt=0, description="t_p of Eq. 16 in units of (mass of a full coarse cell) / dx"
     )
 
     @field_validator("boxes")

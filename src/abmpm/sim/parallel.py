@@ -92,8 +92,7 @@ class Launcher:
 
         # The first launch of a kernel (for a generic one, of each argument type)
         # compiles or specialises it: that must not happen on two threads at once.
-        key = (kernel, tuple(type(getattr(a, "dtype", a)) if not isinstance(a, wp.array) else a.dtype
-                             for a in make(0, *parts[0])))
+        key = (kernel, tuple(a.dtype if isinstance(a, wp.array) else type(a) for a in make(0, *parts[0])))
         if len(parts) == 1 or key not in self._warm:
             self._warm.add(key)
             for part in range(len(parts)):

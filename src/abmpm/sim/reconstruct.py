@@ -73,6 +73,12 @@ def bspline_slopes(fx: wp.vec3):
     return wp.matrix_from_rows(fx - wp.vec3(1.5), -2.0 * (fx - wp.vec3(1.0)), fx - wp.vec3(0.5))
 
 
+@wp.func
+def weight_gradient(w: wp.mat33, dw: wp.mat33, i: int, j: int, k: int):
+    # grad of w_i = w(x) w(y) w(z) in cells^-1 (multiply by 1/dx for space)
+    return wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
+
+
 @wp.kernel
 def scatter_surface_mass(s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec, f: SurfaceField):
     # Eq. 16: G_i = sum_p grad w_ip m_p, and beside it the occupied volume
@@ -95,8 +101,7 @@ def scatter_surface_mass(s: ParticleArrays, materials: wp.array(dtype=MaterialPa
         for j in range(3):
             for k in range(3):
                 n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
-                grad = wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
-                wp.atomic_add(f.grad, n, (m * g.inv_dx) * grad)
+                wp.atomic_add(f.grad, n, (m * g.inv_dx) * weight_gradient(w, dw, i, j, k))
                 wp.atomic_add(f.volume, n, vol * w[i, 0] * w[j, 1] * w[k, 2])
 
 
@@ -112,8 +117,9 @@ def filter_weight(a: int):
 
 @wp.kernel
 def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField):
-    # binomial (1 2 1)^3 / 64 filter of the node volumes: the surface of a disordered
-    # material (a fluid that has flowed) follows its particles' mean, not their noise
+    # (SIDE, 1 - 2 SIDE, SIDE)^3 filter of the node volumes, (1 6 1)/8 per axis: the
+    # surface of a disordered material (a fluid that has flowed) follows its
+    # particles' mean, not their noise; a wider filter shrinks curved surfaces
     n = wp.tid() + first
     c = node_coords(g, n)
     acc = float(0.0)
@@ -184,7 +190,7 @@ def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays,
             for k in range(3):
                 v = f.smooth[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
                 phi += w[i, 0] * w[j, 1] * w[k, 2] * v
-                grad += v * wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
+                grad += v * weight_gradient(w, dw, i, j, k)
     cell = g.dx * g.dx * g.dx
     phi = phi / cell
     grad = grad * (g.inv_dx / cell)
