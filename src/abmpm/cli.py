@@ -1,9 +1,12 @@
 """The ``abmpm`` command line.
 
-    abmpm run SCENE [--out DIR] [--device cpu|cuda] [--frames N] [--resume] [--no-preview]
+    abmpm run SCENE [--out DIR] [--device cpu|cuda] [--frames N] [--resume] [--no-preview] [--view]
     abmpm scenes                 built-in scenes
     abmpm info                   versions and devices
     abmpm render DIR             re-render the preview of a finished run
+    abmpm view DIR [--port N]    browse a run's frames in the web browser (viser)
+    abmpm sweep SCENE --set KEY=V1,V2,...   a run per combination of values (a wedge)
+    abmpm surface DIR            surface meshes of a finished run
     abmpm bench                  performance benchmark
 
 User errors (a bad scene key, a missing mesh, an unwritable folder, a scene too big
@@ -103,6 +106,7 @@ def _cmd_run(args) -> int:
         summary = run(
             scene, out, device=args.device, frames=args.frames, resume=args.resume,
             preview=not args.no_preview, progress=not args.quiet, console=con,
+            view=_view_options(args),
         )
     except KeyboardInterrupt:
         print(f"interrupted; continue with: abmpm run {args.scene} --out {out} --resume", file=sys.stderr)
@@ -131,7 +135,7 @@ def _print_summary(s: dict, out: Path) -> None:
         + f" on {_esc(s['device'])} in {s['wall_seconds']:.1f} s"
     )
     outputs = s.get("outputs", {})
-    for key in ("preview", "poster", "energy_plot", "frames", "colliders", "checkpoints", "usd", "summary"):
+    for key in ("preview", "poster", "energy_plot", "frames", "colliders", "checkpoints", "surfaces", "usd", "summary"):
         if key in outputs:
             con.print(f"  {key:<12} {_esc(out / outputs[key])}")
 
@@ -205,6 +209,125 @@ def _cmd_render(args) -> int:
     return EXIT_OK
 
 
+def _view_options(args):
+    """abmpm run --view: the live view, served on after the run until Ctrl-C."""
+    if not args.view:
+        return None
+    from abmpm.io.writers.viewer import ViewOptions
+
+    return ViewOptions(port=args.view_port, keep_open=True)
+
+
+def _cmd_view(args) -> int:
+    from abmpm.post.viewer import Viewer
+
+    viewer = Viewer(args.dir, host=args.host, port=args.port)
+    try:
+        _stdout().print(f"viewing {_esc(args.dir)} at [bold]{_esc(viewer.url)}[/bold] (Ctrl-C to stop)")
+        viewer.wait()
+    except KeyboardInterrupt:
+        pass  # the normal way to stop serving
+    finally:
+        viewer.close()
+    return EXIT_OK
+
+
+def _cmd_surface(args) -> int:
+    from abmpm.post.surface import surface_folder
+
+    info = surface_folder(args.dir)
+    if not args.quiet:
+        usd = ", particles.usd rewritten with them" if info["usd"] else ""
+        _stdout().print(
+            f"[green]meshed[/green] {info['frames']} frames -> {_esc(Path(args.dir) / 'surfaces')} "
+            f"({info['triangles']} triangles, {info['seconds_per_frame']:.3f} s a frame{usd})"
+        )
+    return EXIT_OK
+
+
+def _cmd_sweep(args) -> int:
+    from abmpm.sweep import feasible_on, import_ray, parse_set, plan_sweep, run_sweep
+
+    if args.ray:
+        import_ray()  # "--ray needs ray" before anything else
+    values = parse_set(args.set)
+    # every combination is validated (and, run here, checked to fit) before any run
+    plan = plan_sweep(args.scene, values, check=None if args.ray else feasible_on(args.device))
+    name = plan.source.data.get("name") or plan.source.default_name or "scene"
+    out = Path(args.out) if args.out else Path("out") / f"{name}_sweep"
+    con = _stderr()
+    n = len(plan.runs)
+    if not args.quiet:
+        where = f"on Ray ({args.ray})" if args.ray else "one after another"
+        con.print(f"[bold]abmpm[/bold] sweep [cyan]{_esc(args.scene)}[/cyan]: {n} run{'s' * (n != 1)} "
+                  f"{where} -> {_esc(out)}")
+
+    def on_start(i, n, run_name):
+        if not args.quiet:
+            con.print(f"[{i}/{n}] {'queued' if args.ray else 'running'} {run_name}", markup=False)
+
+    def on_done(i, n, row):
+        if args.quiet:
+            return
+        status = row.get("status")
+        color = "green" if status == "completed" else "red"
+        figures = ""
+        if row.get("particle_count") is not None:
+            figures = f", {row['particle_count']:,} particles, {row.get('steps', 0):,} steps"
+            if row.get("wall_seconds") is not None:
+                figures += f" in {row['wall_seconds']:.1f} s"
+        msg = f" ({_esc(row['message'])})" if row.get("message") and status != "completed" else ""
+        con.print(f"{_esc(f'[{i}/{n}]')} {_esc(row['run'])}: [{color}]{_esc(status)}[/{color}]{figures}{msg}")
+
+    try:
+        rows = run_sweep(
+            args.scene, values, out, frames=args.frames, device=args.device, threads=args.threads,
+            preview=not args.no_preview, ray=args.ray, on_start=on_start, on_done=on_done, plan=plan,
+        )
+    except KeyboardInterrupt:
+        print(f"interrupted; the finished runs are in {out / 'sweep.csv'}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    failed = [r for r in rows if r.get("status") != "completed"]
+    if not args.quiet:
+        _print_sweep_table(rows, out)
+    if failed:
+        kinds = ", ".join(f"{sum(r.get('status') == k for r in failed)} {k}"
+                          for k in dict.fromkeys(r.get("status") for r in failed))
+        print(f"error: {len(failed)} of {len(rows)} runs failed ({kinds}); see {out / 'sweep.csv'}", file=sys.stderr)
+        return EXIT_ERROR
+    return EXIT_OK
+
+
+def _print_sweep_table(rows: list[dict], out: Path) -> None:
+    from rich.table import Table
+
+    def num(v, fmt):
+        return "" if v is None else format(v, fmt)
+
+    failed = any(r.get("status") != "completed" for r in rows)
+    table = Table(title=f"sweep: {len(rows)} runs")
+    table.add_column("run", style="cyan", no_wrap=True)
+    table.add_column("status", no_wrap=True)
+    for head in ("particles", "steps", "steps/s", "wall s"):
+        table.add_column(head, justify="right", no_wrap=True)
+    if failed:
+        table.add_column("message")
+    for r in rows:
+        status = r.get("status") or "?"
+        color = "green" if status == "completed" else "red"
+        cells = [
+            _esc(r.get("run")), f"[{color}]{_esc(status)}[/{color}]",
+            num(r.get("particle_count"), ","), num(r.get("steps"), ","),
+            num(r.get("steps_per_second"), ",.0f"), num(r.get("wall_seconds"), ".1f"),
+        ]
+        if failed:
+            cells.append(_esc(r.get("message") or "") if status != "completed" else "")
+        table.add_row(*cells)
+    con = _stdout()
+    con.print(table)
+    con.print(f"results: {_esc(out / 'sweep.csv')}, {_esc(out / 'sweep.json')}")
+
+
 def _cmd_bench(args) -> int:
     import importlib
 
@@ -247,6 +370,16 @@ def _positive_int(text: str, what: str) -> int:
     return n
 
 
+def _port_arg(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= n <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is between 0 and 65535, got {n}")
+    return n
+
+
 def _frames_arg(text: str) -> int:
     return _positive_int(text, "frames")
 
@@ -274,6 +407,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refinement mode, overriding the scene's (default out: out/<scene>_<mode>/)")
     r.add_argument("--resume", action="store_true", help="continue from the latest checkpoint in the output folder")
     r.add_argument("--no-preview", action="store_true", help="do not render preview.mp4 / preview.png")
+    r.add_argument("--view", action="store_true",
+                   help="watch the run in the web browser (needs viser); serves on after the run until Ctrl-C")
+    r.add_argument("--view-port", type=_port_arg, default=8080, metavar="N",
+                   help="port of --view (default 8080, else the next free one)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     r.add_argument("--threads", "-j", type=_threads_arg, metavar="N",
                    help="CPU threads for the step (default: $ABMPM_THREADS, else every core)")
@@ -289,6 +426,40 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("dir", metavar="DIR", help="output folder of a run")
     d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_render)
+
+    v = sub.add_parser("view", help="browse a run's frames in the web browser (needs viser)")
+    v.add_argument("dir", metavar="DIR", help="output folder of a run")
+    v.add_argument("--port", "-p", type=_port_arg, default=8080, metavar="N",
+                   help="port to serve on (default 8080, else the next free one)")
+    v.add_argument("--host", default="127.0.0.1", metavar="HOST",
+                   help="address to serve on (default 127.0.0.1; 0.0.0.0 for other machines)")
+    v.set_defaults(func=_cmd_view)
+
+    m = sub.add_parser("surface", help="surface meshes (PLY, and into the USD) of a finished run's frames")
+    m.add_argument("dir", metavar="DIR", help="output folder of a run")
+    m.add_argument("--quiet", "-q", action="store_true", help="print nothing")
+    m.set_defaults(func=_cmd_surface)
+
+    w = sub.add_parser("sweep", help="run a scene for every combination of values (a wedge)",
+                       description="Run SCENE once per combination of the --set values (their Cartesian "
+                                   "product), each into DIR/<key=value,...>/, and write DIR/sweep.csv and "
+                                   "DIR/sweep.json. Exit status 2 if any run failed.")
+    w.add_argument("scene", metavar="SCENE", help="scene file (.toml) or built-in name (see `abmpm scenes`)")
+    w.add_argument("--set", "-s", dest="set", action="append", required=True, metavar="KEY=V1,V2,...",
+                   help="a scene key and its values, e.g. simulation.dx=0.02,0.01 or materials[0].viscosity=0,1e-3 "
+                        "(TOML values; bare words are strings); repeat for more keys")
+    w.add_argument("--out", "-o", metavar="DIR", help="sweep folder (default: out/<scene name>_sweep/)")
+    w.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="frames per run (default: duration * fps)")
+    w.add_argument("--device", "-d", metavar="DEVICE",
+                   help="cpu, cuda or cuda:N (default: the scene's, else cuda when available)")
+    w.add_argument("--threads", "-j", type=_threads_arg, metavar="N",
+                   help="CPU threads per run (default: 1 on Ray, else $ABMPM_THREADS or every core)")
+    w.add_argument("--ray", metavar="auto|local|ADDRESS",
+                   help="run as Ray tasks: auto (the running cluster, else a new local one), local (a new "
+                        "local one) or a cluster address; needs pip install 'abmpm[sweep]'")
+    w.add_argument("--no-preview", action="store_true", help="no preview.mp4 / preview.png per run")
+    w.add_argument("--quiet", "-q", action="store_true", help="no progress lines or table")
+    w.set_defaults(func=_cmd_sweep)
 
     b = sub.add_parser("bench", help="performance benchmark (options: abmpm bench --help-bench)",
                        add_help=False)

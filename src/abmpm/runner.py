@@ -10,7 +10,8 @@
         summary.json                    run statistics and per-frame diagnostics
         energy.png                      kinetic, potential and total energy; mass and momentum
         preview.mp4, preview.png        a rendered preview and its poster frame
-        particles.usd                   (output.usd = true) time-sampled USD points
+        surfaces/surface_00000_water.ply  (output.surface = true) surface mesh per material
+        particles.usd                   (output.usd = true) particles, colliders, surfaces
 
 Each output is a writer of :mod:`abmpm.io.writers`; the folder's layout and
 housekeeping are in :mod:`abmpm.io.outdir`, the preview in :mod:`abmpm.post.preview`.
@@ -27,58 +28,22 @@ import contextlib
 import os
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from rich.markup import escape
 
 from abmpm.errors import AbmpmError, OutputError, SceneError, SimulationBlowUp
-from abmpm.io.checkpoint import latest_checkpoint, load_checkpoint
-from abmpm.io.outdir import (
-    CHECKPOINTS_DIR,
-    COLLIDERS_DIR,
-    ENERGY_FILE,
-    FRAMES_DIR,
-    POSTER_FILE,
-    PREVIEW_FILE,
-    REGION_FILE,
-    SCENE_FILE,
-    SUMMARY_FILE,
-    USD_FILE,
-    clean_previous_run,
-    clean_temporaries,
-    collider_path,
-    frame_path,
-    prepare_out_dir,
-    scene_from_folder,
-)
+from abmpm.io.resume import resume_from_checkpoint
+from abmpm.io.outdir import SCENE_FILE, SUMMARY_FILE, clean_previous_run, clean_temporaries, prepare_out_dir
 from abmpm.io.progress import Progress
 from abmpm.io.summary import write_json
 from abmpm.io.writers import FrameData, RunContext, Writer, build_writers
 from abmpm.io.writers.summary import make_summary
-from abmpm.post.preview import PREVIEW_SIZE, render_folder
+from abmpm.post.preview import render_folder
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
 
-__all__ = [
-    "run",
-    "render_folder",
-    "total_frames",
-    "frame_path",
-    "collider_path",
-    # re-exported from abmpm.io.outdir and abmpm.post.preview
-    "CHECKPOINTS_DIR",
-    "COLLIDERS_DIR",
-    "ENERGY_FILE",
-    "FRAMES_DIR",
-    "POSTER_FILE",
-    "PREVIEW_FILE",
-    "PREVIEW_SIZE",
-    "REGION_FILE",
-    "SCENE_FILE",
-    "SUMMARY_FILE",
-    "USD_FILE",
-]
+__all__ = ["render_folder", "run", "total_frames"]
 
 
 def total_frames(scene: Scene, frames: int | None = None) -> int:
@@ -100,12 +65,15 @@ def run(
     preview: bool = True,
     progress: bool = True,
     console=None,
+    view=None,
 ) -> dict:
     """Simulate ``scene`` (a Scene, a ``.toml`` path or a built-in name) into ``out_dir``.
 
     ``frames`` overrides the number of frames (default ``duration * fps``);
     ``resume`` continues from the latest checkpoint in ``out_dir``; ``preview=False``
-    skips the video. Returns the summary dict (also written to ``summary.json``).
+    skips the video; ``view`` (True or a :class:`~abmpm.io.writers.viewer.ViewOptions`)
+    serves a live browser view of the run. Returns the summary dict (also written to
+    ``summary.json``).
     On :class:`SimulationBlowUp` the last good state is checkpointed, the summary is
     written with status ``"blew_up"`` and the exception is re-raised.
     """
@@ -119,12 +87,12 @@ def run(
     scene.check_feasible(None, device)
     prepare_out_dir(out)
     clean_temporaries(out)
-    writers = build_writers(scene.output, preview=preview)  # refuses USD without usd-core
+    writers = build_writers(scene.output, preview=preview, view=view)  # refuses USD without usd-core
 
     sim = Simulation(scene, device)
     if not resume:
         _check_initial_state(scene, sim)
-    resumed_from, notes = _resume(out, scene, sim) if resume else (None, [])
+    resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, [])
     if resumed_from is None:
         clean_previous_run(out)
     write_json(out / SCENE_FILE, scene.model_dump(mode="json"))
@@ -192,7 +160,7 @@ def _finish(writers: list[Writer], ctx: RunContext) -> None:
         w.finish(ctx)
 
 
-# --------------------------------------------------------------------------- checks and resume
+# --------------------------------------------------------------------------- checks
 
 
 def _check_initial_state(scene: Scene, sim) -> None:
@@ -211,63 +179,4 @@ def _check_initial_state(scene: Scene, sim) -> None:
         raise SceneError(
             f"{where}{key}: the initial particle field '{name}' is not finite in single precision "
             f"({int(bad.sum())} particles); check the body's velocity, angular_velocity, material and mesh"
-        )
-
-
-def _resume(out: Path, scene: Scene, sim) -> tuple[int | None, list[str]]:
-    """Load the latest checkpoint in ``out`` into ``sim``: (its frame, or None when
-    there is none, and the notes to print)."""
-    ckpt = latest_checkpoint(out / CHECKPOINTS_DIR)
-    if ckpt is None:
-        return None, [f"no checkpoint in {out / CHECKPOINTS_DIR}; starting from frame 0"]
-    _check_resumable(out, scene, sim, ckpt)
-    arrays, meta = load_checkpoint(ckpt)
-    if len(arrays.get("x", ())) != sim.particle_count:
-        raise OutputError(
-            f"{ckpt}: holds {len(arrays.get('x', ()))} particles but the scene has "
-            f"{sim.particle_count}; cannot resume"
-        )
-    sim.load_state_dict(arrays, meta)
-    return sim.frame, [f"resuming from {ckpt.name} (frame {sim.frame})"]
-
-
-def _physics_dump(scene: Scene) -> dict:
-    """The parts of a scene that a checkpoint depends on."""
-    d = scene.model_dump(mode="json", exclude={"name", "description", "output", "base_dir"})
-    d["simulation"].pop("duration", None)
-    d["simulation"].pop("device", None)
-    return d
-
-
-def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for k in sorted(set(a) | set(b)):
-            key = f"{prefix}.{k}" if prefix else str(k)
-            out += _diff_keys(a.get(k), b.get(k), key) if k in a and k in b else [key]
-        return out
-    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b) and not all(
-        isinstance(v, (int, float)) for v in a + b
-    ):
-        out = []
-        for i, (x, y) in enumerate(zip(a, b)):
-            out += _diff_keys(x, y, f"{prefix}[{i}]")
-        return out
-    return [] if a == b else [prefix]
-
-
-def _check_resumable(out: Path, scene: Scene, sim, ckpt: Path) -> None:
-    saved = out / SCENE_FILE
-    if not saved.is_file():
-        return
-    try:
-        old = scene_from_folder(out)
-    except OutputError:
-        return
-    diff = _diff_keys(_physics_dump(old), _physics_dump(scene))
-    if diff:
-        shown = ", ".join(diff[:5]) + (", ..." if len(diff) > 5 else "")
-        raise OutputError(
-            f"{out}: cannot resume from {ckpt.name}: the scene changed since it was written "
-            f"(differs in {shown}); run without --resume to start over"
         )

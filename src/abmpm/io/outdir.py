@@ -26,6 +26,7 @@ __all__ = [
     "REGION_FILE",
     "SCENE_FILE",
     "SUMMARY_FILE",
+    "SURFACES_DIR",
     "USD_FILE",
     "checkpoint_path",
     "clean_previous_run",
@@ -41,6 +42,7 @@ __all__ = [
 FRAMES_DIR = "frames"
 COLLIDERS_DIR = "colliders"
 CHECKPOINTS_DIR = "checkpoints"
+SURFACES_DIR = "surfaces"  # output.surface: surface_NNNNN_<material>.ply
 SCENE_FILE = "scene.json"
 REGION_FILE = "region.npz"  # adaptive mode: the refined coarse cells (cells, origin, dx)
 SUMMARY_FILE = "summary.json"
@@ -52,6 +54,7 @@ USD_FILE = "particles.usd"
 FRAME_RE = re.compile(r"^frame_(\d+)\.ply$")
 COLLIDER_RE = re.compile(r"^collider_(\d+)\.ply$")
 CHECKPOINT_RE = re.compile(r"^checkpoint_(\d+)\.npz$")
+SURFACE_RE = re.compile(r"^surface_(\d+)_(.+)\.ply$")
 
 # Hidden temporary files that an interrupted write leaves behind: atomic_write's
 # ".{stem}.XXXXXXXX.tmp{suffix}" and the write probe ".abmpm-write-test-XXXXXXXX".
@@ -99,7 +102,7 @@ def clean_temporaries(out: Path) -> list[Path]:
     """Remove the temporary files that interrupted writes left in ``out`` and in its
     frames/colliders/checkpoints folders (only names abmpm's writers use)."""
     removed = []
-    for folder in (out, out / FRAMES_DIR, out / COLLIDERS_DIR, out / CHECKPOINTS_DIR):
+    for folder in (out, out / FRAMES_DIR, out / COLLIDERS_DIR, out / CHECKPOINTS_DIR, out / SURFACES_DIR):
         if not folder.is_dir():
             continue
         for p in folder.iterdir():
@@ -129,6 +132,7 @@ def clean_previous_run(out: Path) -> None:
     victims = [p for _, p in numbered(out / FRAMES_DIR, FRAME_RE)]
     victims += [p for _, p in numbered(out / COLLIDERS_DIR, COLLIDER_RE)]
     victims += [p for _, p in numbered(out / CHECKPOINTS_DIR, CHECKPOINT_RE)]
+    victims += [p for _, p in numbered(out / SURFACES_DIR, SURFACE_RE)]
     victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE, REGION_FILE)]
     for p in victims:
         try:
@@ -147,6 +151,8 @@ def numbered_outputs(out: Path) -> dict[str, str]:
         found["colliders"] = f"{COLLIDERS_DIR}/collider_NNNNN.ply"
     if numbered(out / CHECKPOINTS_DIR, CHECKPOINT_RE):
         found["checkpoints"] = f"{CHECKPOINTS_DIR}/checkpoint_NNNNN.npz"
+    if numbered(out / SURFACES_DIR, SURFACE_RE):
+        found["surfaces"] = f"{SURFACES_DIR}/surface_NNNNN_<material>.ply"
     return found
 
 

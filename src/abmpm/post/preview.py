@@ -39,9 +39,11 @@ __all__ = [
     "REGION_COLOR",
     "ColliderTrack",
     "disk_frames",
+    "frame_image",
     "material_densities",
     "particle_colors",
     "render_folder",
+    "region_lines",
     "render_preview",
     "speed_vmax",
     "splat_radius",
@@ -160,7 +162,7 @@ def _internal_kinetic_energy(frame: dict) -> float:
     return ke if math.isfinite(ke) else -1.0
 
 
-def _region_lines(out: Path) -> list:
+def region_lines(out: Path) -> list:
     """The refined region's outline for the preview, from region.npz if there is one."""
     from abmpm.post.render import region_outline
 
@@ -171,30 +173,38 @@ def _region_lines(out: Path) -> list:
         return [(region_outline(z["cells"], z["origin"], float(z["dx"])), REGION_COLOR)]
 
 
+def frame_image(scene: Scene, frame: dict, camera, vmax: float | None = None, lines: list = ()) -> np.ndarray:
+    """One frame (as :func:`disk_frames` loads it) drawn as the preview draws it: the
+    particles sized by their volume and colored as ``output.color_by`` asks, the domain
+    box, the colliders and ``lines`` (the refined region: :func:`region_lines`)."""
+    from abmpm.post import render
+
+    st = scene.simulation
+    return render(
+        frame["x"], particle_colors(frame, scene, vmax), camera, splat_radius(frame, material_densities(scene)),
+        box=(st.domain_min, st.domain_max), triangles=frame.get("triangles"), edges=frame.get("edges"), lines=lines,
+    )
+
+
 def render_preview(
     out: Path, scene: Scene, source: FrameSource, fps: float, on_frame: Callable[[], None] | None = None
 ) -> dict:
     """Render ``source`` [(frame, loader)] to preview.mp4 and the poster preview.png in
     ``out``: ``{"frames": count, "poster_frame": frame}``."""
-    from abmpm.post import Camera, render, write_mp4, write_png
+    from abmpm.post import Camera, write_mp4, write_png
 
     if not source:
         raise OutputError(f"{out}: no particle frames to render")
     st = scene.simulation
-    box = (st.domain_min, st.domain_max)
     camera = Camera.framing_box(st.domain_min, st.domain_max, *PREVIEW_SIZE)
-    densities = material_densities(scene)
     vmax = speed_vmax(source) if scene.output.color_by == "speed" else None
     poster: dict[str, Any] = {"ke": -1.0, "image": None, "frame": None}
-    lines = _region_lines(out)
+    lines = region_lines(out)
 
     def images() -> Iterator[np.ndarray]:
         for n, load in source:
             f = load()
-            img = render(
-                f["x"], particle_colors(f, scene, vmax), camera, splat_radius(f, densities), box=box,
-                triangles=f.get("triangles"), edges=f.get("edges"), lines=lines,
-            )
+            img = frame_image(scene, f, camera, vmax, lines)
             ke = _internal_kinetic_energy(f)
             # poster: the frame with the most motion relative to the centre of mass, so
             # that a body thrown or dropped as a whole shows its impact, not its flight

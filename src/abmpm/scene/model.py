@@ -424,6 +424,23 @@ Collider = Annotated[
 # --------------------------------------------------------------------------- output
 
 
+class SurfaceMeshOptions(_Strict):
+    """``[output.surface_mesh]``: how the surface meshes are built (splashsurf). Lengths
+    are relative to the particle spacing s (the cube root of a particle's volume)."""
+
+    radius: float = Field(0.5, gt=0.0, le=4.0, description="particle radius, in particle spacings")
+    fluid_smoothing_length: float = Field(
+        3.0, ge=1.0, le=8.0, description="SPH kernel smoothing length for fluids, in particle radii"
+    )
+    solid_smoothing_length: float = Field(
+        2.0, ge=1.0, le=8.0, description="SPH kernel smoothing length for solids, in particle radii"
+    )
+    cube_size: float = Field(1.0, ge=0.25, le=4.0, description="marching-cubes cell, in particle radii")
+    iso: float = Field(0.6, gt=0.0, lt=2.0, description="level of the SPH volume fraction where the surface is")
+    fluid_smoothing_iters: int = Field(10, ge=0, le=500, description="weighted Laplacian smoothing of fluid surfaces")
+    solid_smoothing_iters: int = Field(0, ge=0, le=500, description="smoothing of solid surfaces (0 keeps edges sharp)")
+
+
 class Output(_Strict):
     frames: bool = True
     frame_every: int = Field(1, ge=1, description="write every N-th frame")
@@ -433,6 +450,8 @@ class Output(_Strict):
     )
     checkpoint_every: int = Field(10, ge=1, description="write a checkpoint every N frames")
     usd: bool = False
+    surface: bool = Field(False, description="write surfaces/surface_NNNNN_<material>.ply (needs pysplashsurf)")
+    surface_mesh: SurfaceMeshOptions = SurfaceMeshOptions()
 
 
 # --------------------------------------------------------------------------- scene
