@@ -36,6 +36,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         base_level=1 if mode == "finest" else 0,
         reconstruct=st.refinement.reconstruct,
         surface_threshold=st.refinement.surface_threshold,
+        cuda_graph=st.cuda_graph,
     )
 
 

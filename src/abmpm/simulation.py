@@ -25,7 +25,7 @@ from .sim.colliders import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
-from .sim.solver import MPMSolver
+from .sim.solver import SEGMENT_MAX, MPMSolver
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
@@ -130,6 +130,10 @@ class Simulation:
         self.colliders = ColliderSet(rigid_bodies(scene), self.device, cpic=st.cpic) if scene.colliders else None
         self.wave_speed = max_wave_speed(scene)
         self.solver = MPMSolver(solver_config(scene, self.mode), material_rows(scene), self.device, self.colliders)
+        # The most substeps between two host points (one read of their CFL signals):
+        # 1 unless the solver replays captured graphs. Any value gives the results of
+        # one substep at a time: a segment that must stop early is rewound.
+        self.max_segment = SEGMENT_MAX if self.solver.capture else 1
         arrays = sample_scene(scene)
         if self.mode == "finest":
             arrays["level"][:] = 1
@@ -230,13 +234,38 @@ class Simulation:
         An impact can multiply speeds within a frame, so the rest of the frame is
         re-cut whenever the current step has become too long; a frame with steady
         speeds keeps equal substeps."""
-        self.solver.step(self._state, self.dt, self.time)
+        self._run_segment(1)
+
+    def _run_segment(self, limit: int, done=None) -> None:
+        """Up to ``limit`` substeps as one segment of the solver (no host work between
+        them), then each substep's bookkeeping in turn, as ``step`` does it. Should a
+        substep end the segment early (the rest of the frame re-cut, a blow-up, or
+        ``done()``), the solver rewinds to just after it: any ``limit`` gives the
+        results of one substep at a time."""
+        n = min(limit, self._left, self.solver.segment_length)
+        self.solver.begin_segment(self._state, self.time, self.dt, n)
+        self.solver.run_segment(self._state)
+        signals = self.solver.end_segment()
+        for k in range(n):
+            early = k < n - 1
+            try:
+                recut = self._substep_taken((float(signals[k, 0]), float(signals[k, 1])))
+            except SimulationBlowUp:
+                if early:
+                    self.solver.rewind(self._state, k + 1)
+                raise
+            if early and (recut or (done is not None and done())):
+                self.solver.rewind(self._state, k + 1)
+                return
+
+    def _substep_taken(self, signal: tuple[float, float]) -> bool:
+        # bookkeeping after one substep; True if the rest of the frame was re-cut
         self.steps += 1
         self._taken += 1
         self._left -= 1
         self._t_frame += self.dt
-        self._signal = self.solver.last_signal()
-        dt_max = self._checked_dt(self._signal)
+        self._signal = signal
+        dt_max = self._checked_dt(signal)
         if self._left == 0:
             self._t_frame = 0.0
             self._taken = 0
@@ -244,6 +273,8 @@ class Simulation:
         elif self.dt > dt_max * (1.0 + 1e-6):
             self._split_rest(self.frame_dt - self._t_frame, dt_max)
             self.substeps = self._taken + self._left
+            return True
+        return False
 
     def advance(self, seconds: float | None = None, frames: int | None = None, callback=None) -> None:
         """Run whole frames, or a duration in seconds (stopping at the first substep
@@ -258,7 +289,7 @@ class Simulation:
             done = lambda: self.time >= t_end - 1e-9 * max(1.0, t_end)  # noqa: E731
         while not done():
             frame = self.frame
-            self.step()
+            self._run_segment(self.max_segment, done)
             if callback is not None and self.frame != frame:
                 callback(self)
 

@@ -72,7 +72,9 @@ def load_mesh(path, where: str) -> trimesh.Trimesh:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces)
     if len(faces) == 0 or len(vertices) == 0:
-        raise MeshError(f"{path}: mesh is empty (no triangles){ref}")
+        # garbage bytes decode to an empty mesh when a text-encoding detector is installed
+        # (requests brings one), and raise when none is: the same message for both
+        raise MeshError(f"{path}: cannot read mesh: not a valid {fmt} file (no triangles in its {size} bytes){ref}")
     bad = ~np.isfinite(vertices).all(axis=1)
     if bad.any():
         raise MeshError(

@@ -172,6 +172,9 @@ class SimulationSettings(_Strict):
     cpic: bool = Field(
         True, description="compatible transfers at colliders; false: plain grid boundary (leaks through thin sheets)"
     )
+    cuda_graph: bool = Field(
+        False, description="replay the substeps between host points as captured CUDA graphs (CUDA only; experimental)"
+    )
 
     @model_validator(mode="after")
     def _domain_is_a_box(self):

@@ -70,6 +70,7 @@ class Launcher:
         self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="abmpm") if self.threads > 1 else None
         self._private: dict[int, list[tuple[wp.array, wp.array]]] = {}
         self._warm: set = set()  # (kernel, argument types) launched once already
+        self.serial = False  # run the parts one after the other on this thread (graph capture)
 
     def ranges(self, n: int) -> list[tuple[int, int]]:
         """(first, count) of each thread's part of ``range(n)``, in order."""
@@ -93,7 +94,7 @@ class Launcher:
         # The first launch of a kernel (for a generic one, of each argument type)
         # compiles or specialises it: that must not happen on two threads at once.
         key = (kernel, tuple(a.dtype if isinstance(a, wp.array) else type(a) for a in make(0, *parts[0])))
-        if len(parts) == 1 or key not in self._warm:
+        if len(parts) == 1 or key not in self._warm or self.serial:
             self._warm.add(key)
             for part in range(len(parts)):
                 run(part)
@@ -106,7 +107,9 @@ class Launcher:
 
     def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> list[tuple[wp.array, wp.array]]:
         """Per-part P2G accumulators of a grid: part 0 writes the grid's own, the
-        others their zeroed copies (same size as the grid's storage)."""
+        others their zeroed copies (same size as the grid's storage). They are made
+        on the first call and when the grid's storage grows: the solver asks at its
+        host points, so that its substeps find them ready."""
         arrays = self._private.get(grid_key, [])
         if arrays and arrays[0][1].shape[0] != m.shape[0]:
             arrays = []
@@ -114,6 +117,10 @@ class Launcher:
             arrays.append((wp.zeros_like(mv), wp.zeros_like(m)))
         self._private[grid_key] = arrays
         return [(mv, m)] + arrays
+
+    def private_arrays(self) -> list[wp.array]:
+        """Every private accumulator allocated so far."""
+        return [a for arrays in self._private.values() for pair in arrays for a in pair]
 
     def gather(self, grid_key: int, mv: wp.array, m: wp.array, used_parts: int, node_count: int) -> None:
         """Add the private accumulators of parts 1.. to the grid's (fixed order)."""

@@ -1,29 +1,45 @@
 """The adaptive-boundary MPM step, in one place (paper Algorithm 1).
 
-``MPMSolver.step(state, dt, time)`` is the whole step:
+A step is split into host work at points the solver announces and a pure device
+substep, so that the substeps between two host points can run as one captured
+CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
+
+``begin_segment(state, time, dt, substeps)``, a host point:
 
 1. move the colliders to ``time`` and rebuild their color distance field;
-2. adaptive mode: split the level-0 particles that entered the refined region
-   (Eq. 15), move the children of surface parents onto the parent-level surface
-   (Eqs. 16-20), and give the fine grid the blocks its particles need;
-3. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
-4. grid update: gravity, domain walls, collider contact (Eqs. 3-4, 22);
-5. G2P of each particle from its own level's grid, with boundary velocities at
+2. adaptive mode, every REFINE_EVERY steps: split the level-0 particles that
+   entered the refined region (Eq. 15), move the children of surface parents onto
+   the parent-level surface (Eqs. 16-20), and give the fine grid the blocks its
+   particles need;
+3. reserve every buffer the substeps use, set dt on the device, reset the CFL
+   signal slots (and keep a copy of the particles if the segment may be rewound).
+
+``substep(state)``, launches only (no allocation, no read-back):
+
+4. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
+5. grid update: gravity, domain walls, collider contact (Eqs. 3-4, 22);
+6. G2P of each particle from its own level's grid, with boundary velocities at
    incompatible nodes (Eqs. 11-12, 23-25), deformation update and return mapping
-   (Eqs. 7, 13-14), advection that never crosses a collider.
+   (Eqs. 7, 13-14), advection that never crosses a collider; the fastest particle
+   into this substep's CFL signal slot.
+
+``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a
+captured graph), ``end_segment()`` reads the per-substep signals back at once.
+``step(state, dt, time)`` is a segment of one substep.
 
 Everything else (sampling, output, diagnostics, time stepping) lives outside.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from . import transfer
+from . import parallel, transfer
 from .boundary import FACES
 from .colliders import (
     ColliderSet,
@@ -37,9 +53,13 @@ from .materials import MaterialParams
 from .parallel import Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
-from .state import FIELDS, ParticleState
+from .state import DYNAMIC, FIELDS, ParticleState
 
 wp.set_module_options({"enable_backward": False})
+
+# The longest segment (substeps between two host points): segments end at every
+# refinement step, in every mode, so that their lengths repeat and graphs are reused.
+SEGMENT_MAX = REFINE_EVERY
 
 
 @dataclass
@@ -60,6 +80,9 @@ class SolverConfig:
     surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
     # CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored
     threads: int | None = None
+    # run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
+    # a warning on the CPU, where a replayed graph would run on one thread)
+    cuda_graph: bool = False
 
 
 class MPMSolver:
@@ -90,14 +113,33 @@ class MPMSolver:
         self._next_id = 0  # id of the next particle a split creates
         self._first_split_id = None  # ids from here on were made by splits (set by the first reserve_ids)
         self._steps = 0
+        # buffers of the substeps, (re)sized at host points only (_reserve)
         self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
-        self._occ = self._no_occ
-        self._cmask = self._no_occ
-        # [max speed, max sound-speed stiffening] per CPU thread, written by G2P (atomic max)
-        at_rest = np.tile([0.0, 1.0], self.launcher.threads)
+        self._occ = self._no_occ  # coarse nodes reached by level-0 particles (adaptive mode)
+        self._cmask = self._no_occ  # per-particle compatibility mask, P2G -> G2P (CPIC)
+        self._dt = wp.zeros(1, dtype=float, device=device)  # the segment's dt, read by the kernels
+        # [max speed, max sound-speed stiffening] per substep of a segment and CPU thread,
+        # written by G2P (atomic max) into its own slot; one view per slot, made here
+        threads = self.launcher.threads
+        at_rest = np.tile([0.0, 1.0], SEGMENT_MAX * threads)
         self.signal = wp.array(at_rest, dtype=float, device=device)
         self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
+        self._signal_slots = [[self.signal[2 * (k * threads + t): 2 * (k * threads + t) + 2] for t in range(threads)]
+                              for k in range(SEGMENT_MAX)]
+        self._segment = 0  # substeps in the current segment
+        self._substep = 0  # of which taken
+        self._segment_start = 0  # step count at its start
+        self._kept: dict[str, wp.array] = {}  # dynamic particle fields at the segment start (rewind)
+        # Captured graphs (run_segment). Moving colliders run eagerly: their pose comes
+        # from the host before every substep. ``capture`` may be set on the CPU too:
+        # Warp (>= 1.19) replays CPU graphs, on one thread; the tests use that to check
+        # the captured path without a GPU.
+        if config.cuda_graph and not self.launcher.device.is_cuda:
+            warnings.warn("cuda_graph is ignored on the CPU: substeps run eagerly on all threads", stacklevel=2)
+        self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
+        self._graphs: dict[tuple, Any] = {}  # (first slot, substeps) -> graph, for _graph_buffers
+        self._graph_buffers: tuple | None = None
 
     # ------------------------------------------------------------------ questions
 
@@ -149,71 +191,168 @@ class MPMSolver:
 
     # ------------------------------------------------------------------ the step
 
+    @property
+    def segment_length(self) -> int:
+        """The most substeps the next segment may have: up to the next refinement step
+        (every REFINE_EVERY steps); 1 while colliders move (their pose and color field
+        are set on the host before every substep)."""
+        if self.colliders is not None and not self.colliders.static:
+            return 1
+        return SEGMENT_MAX - self._steps % SEGMENT_MAX
+
     def step(self, state: ParticleState, dt: float, time: float = 0.0) -> None:
-        """Advance ``state`` in place from ``time`` by ``dt``. In place is safe: G2P
-        reads and writes only its own particle, after P2G has read them all."""
-        self.move_colliders(time)
+        """Advance ``state`` in place from ``time`` by ``dt``: a segment of one substep
+        (its CFL signal is ``end_segment()[0]``)."""
+        self.begin_segment(state, time, dt, 1)
+        self.run_segment(state)
+
+    def begin_segment(self, state: ParticleState, time: float, dt: float, substeps: int = 1) -> None:
+        """Host point before ``substeps`` (at most ``segment_length``) substeps of
+        length ``dt`` from ``time``: everything that allocates, reads back or uploads
+        from the host happens here, never in a substep."""
+        if not 1 <= substeps <= self.segment_length:
+            raise ValueError(f"a segment has 1 to {self.segment_length} substeps now, not {substeps}")
+        self.move_colliders(time)  # 1. colliders to t, color field
         if self.refiner is not None and self._steps % REFINE_EVERY == 0:
-            self.refine(state)
-        self._steps += 1
-        if self.refiner is None:
-            self._p2g(state, self.grid, dt)
+            self.refine(state)  # 2. split (Eq. 15), fine blocks
+        self._reserve(state)  # 3. buffers, dt, CFL signal slots
+        self._dt.fill_(dt)
+        wp.copy(self.signal, self._signal_at_rest)
+        if substeps > 1:  # a longer segment can be stopped early: see rewind()
+            for name in DYNAMIC:
+                src = getattr(state, name)
+                if self._kept.get(name) is None or self._kept[name].shape[0] < state.capacity:
+                    self._kept[name] = wp.empty(state.capacity, dtype=src.dtype, device=self.device)
+                wp.copy(self._kept[name], src, count=state.count)
+        self._segment, self._substep, self._segment_start = substeps, 0, self._steps
+
+    def substep(self, state: ParticleState) -> None:
+        """One substep of the segment, in place: kernel launches on buffers that
+        begin_segment reserved and nothing else, so it can be captured in a graph. In
+        place is safe: G2P reads and writes only its own particle, after P2G has read
+        them all."""
+        if self._substep >= self._segment:
+            raise RuntimeError("the segment is complete: call begin_segment first")
+        if self.refiner is None:  # 4. P2G (Eqs. 8-10)
+            self._p2g(state, self.grid)
         else:
             coarse, fine = self.grids
-            self._p2g(state, coarse, dt, only_level=0, overlap=1)
-            self._p2g(state, coarse, dt, only_level=1, overlap=2)
-            self._p2g(state, fine, dt)
-        for g in self.grids:
-            self._grid_update(g, dt)
-        wp.copy(self.signal, self._signal_at_rest)  # no host array per step
-        for g in self.grids:
-            self._g2p(state, g, dt)
+            self._p2g(state, coarse, only_level=0, overlap=1)
+            self._p2g(state, coarse, only_level=1, overlap=2)
+            self._p2g(state, fine)
+        for g in self.grids:  # 5. grid update (Eqs. 3-4, 22)
+            self._grid_update(g)
+        for g in self.grids:  # 6. G2P (Eqs. 11-14, 23-25), CFL signal into this substep's slot
+            self._g2p(state, g, self._signal_slots[self._substep])
+        self._substep += 1
+        self._steps += 1
 
-    def _p2g(self, s: ParticleState, g: Grid, dt: float, only_level: int = -1, overlap: int = 0) -> None:
+    def run_segment(self, state: ParticleState) -> None:
+        """The segment's remaining substeps: one after the other, or with ``capture``
+        as one graph, captured the first time its launches (particle count, buffers,
+        substeps) occur and replayed after that; dt is read on the device."""
+        n = self._segment - self._substep
+        if not self.capture or (self.colliders is not None and not self.colliders.static):
+            for _ in range(n):
+                self.substep(state)
+            return
+        buffers = self._graph_buffer_key(state)
+        if buffers != self._graph_buffers:  # anything moved: the old graphs point at freed memory
+            self._graphs.clear()
+            self._graph_buffers = buffers
+        key = (self._substep, n)
+        graph = self._graphs.get(key)
+        if graph is None:
+            graph = self._graphs[key] = self._capture(state, n)  # records, does not run
+        else:
+            self._substep += n
+            self._steps += n
+        wp.capture_launch(graph)
+
+    def end_segment(self) -> np.ndarray:
+        """Host point after the segment: for each of its substeps, the fastest
+        particle's speed (m/s; 1e30 if a velocity was not finite) and the largest
+        factor by which compression raised a fluid's sound speed, shape (substeps, 2).
+        One small read from the device per segment: the CFL time step follows them."""
+        a = self.signal.numpy().reshape(SEGMENT_MAX, self.launcher.threads, 2)[: self._substep]
+        return a.max(axis=1).astype(np.float64)
+
+    def rewind(self, state: ParticleState, substeps: int) -> None:
+        """Stop the segment after its first ``substeps`` substeps: the particles go back
+        to the segment's start and those substeps run again (eagerly; on the CPU the
+        result is bit-identical). For a segment of more than one substep."""
+        if not 1 <= substeps <= self._segment or self._segment < 2:
+            raise ValueError(f"cannot rewind a segment of {self._segment} substeps to {substeps}")
+        for name in DYNAMIC:
+            wp.copy(getattr(state, name), self._kept[name], count=state.count)
+        wp.copy(self.signal, self._signal_at_rest)
+        self._segment, self._substep, self._steps = substeps, 0, self._segment_start
+        for _ in range(substeps):
+            self.substep(state)
+
+    def _reserve(self, state: ParticleState) -> None:
+        # every buffer a substep touches, at the size it needs now
+        if len(self.grids) > 1 and self._tau.shape[0] < state.capacity:
+            self._tau = wp.empty(state.capacity, dtype=wp.mat33, device=self.device)
+        if self.cpic and self._cmask.shape[0] < state.capacity:
+            self._cmask = wp.zeros(state.capacity, dtype=wp.int32, device=self.device)
+        if self.refiner is not None and self._occ.shape[0] != self.grid.capacity:
+            self._occ = wp.zeros(self.grid.capacity, dtype=wp.int32, device=self.device)
+        for g in self.grids:
+            self.launcher.private_grids(g.level, g.mv, g.m)
+        state.arrays()
+
+    def _graph_buffer_key(self, state: ParticleState) -> tuple:
+        # what a captured substep has baked in: launch sizes and every buffer's address
+        arrays = [getattr(state, name) for name in FIELDS]
+        arrays += [self._tau, self._cmask, self._occ, self._dt, self.signal, self.materials,
+                   self.collider_arrays.bodies, self.collider_arrays.face_body]
+        for g in self.grids:
+            arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
+        arrays += self.launcher.private_arrays()
+        return (state.count, tuple(g.node_count for g in self.grids), int(self.collider_arrays.mesh),
+                tuple((a.ptr, a.shape) for a in arrays))
+
+    def _capture(self, state: ParticleState, n: int):
+        first, steps = self._substep, self._steps
+        for module in (transfer, parallel):  # loaded before, not during, the capture
+            wp.load_module(module, device=self.device)
+        self.launcher.serial = True  # one thread records the launches in order
+        try:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                for _ in range(n):
+                    self.substep(state)
+        except BaseException:
+            self._substep, self._steps = first, steps
+            raise
+        finally:
+            self.launcher.serial = False
+        return capture.graph
+
+    def _p2g(self, s: ParticleState, g: Grid, only_level: int = -1, overlap: int = 0) -> None:
         # with a second grid, the coarse P2G keeps each particle's stress for it
         store = len(self.grids) > 1 and not g.sparse
-        if store and self._tau.shape[0] < s.count:
-            self._tau = wp.empty(s.capacity, dtype=wp.mat33, device=self.device)
         # each CPU thread scatters into its own accumulators, added up afterwards
         grids = self.launcher.private_grids(g.level, g.mv, g.m)
-        common = [s.arrays(), self._cmask_for(s), self.materials, g.spec, g.color, dt, self._tau, int(store),
+        common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
         parts = self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], s.count,
                                      lambda part, first, count: [*common, *grids[part]])
         self.launcher.gather(g.level, g.mv, g.m, parts, g.node_count)
 
-    def _cmask_for(self, s: ParticleState):
-        # per-particle compatibility mask, written by P2G and read by G2P (CPIC only)
-        if not self.cpic:
-            return self._no_occ
-        if self._cmask.shape[0] < s.capacity:
-            self._cmask = wp.zeros(s.capacity, dtype=wp.int32, device=self.device)
-        return self._cmask
-
     def _occupied(self, g: Grid):
-        # coarse nodes reached by level-0 particles (adaptive mode only)
-        if self.refiner is not None and not g.sparse:
-            if self._occ.shape[0] != g.capacity:
-                self._occ = wp.zeros(g.capacity, dtype=wp.int32, device=self.device)
-            return self._occ
-        return self._no_occ
+        # the coarse grid's occupancy in adaptive mode, else a placeholder
+        return self._occ if self.refiner is not None and not g.sparse else self._no_occ
 
-    def _grid_update(self, g: Grid, dt: float) -> None:
+    def _grid_update(self, g: Grid) -> None:
         self.launcher.launch(transfer.grid_update, g.node_count,
-                             [g.spec, self.collider_arrays, g.color, dt, g.mv, g.m, g.v, self._occupied(g),
+                             [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
                               int(self.refiner is not None and not g.sparse)])
 
-    def _g2p(self, s: ParticleState, g: Grid, dt: float) -> None:
-        common = [self.materials, g.spec, self.collider_arrays, g.color, dt, g.v, s.arrays(), self._cmask_for(s)]
+    def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
+        common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
         self.launcher.launch(transfer.G2P[self.cpic, g.sparse], s.count,
-                             lambda part, first, count: [*common, self.signal[2 * part: 2 * part + 2]])
-
-    def last_signal(self) -> tuple[float, float]:
-        """After the last step: the fastest particle's speed (m/s; 1e30 if a velocity
-        was not finite) and the largest factor by which compression raised a fluid's
-        sound speed. One small read from the device: the CFL time step follows them."""
-        a = self.signal.numpy().reshape(-1, 2).max(axis=0)
-        return float(a[0]), float(a[1])
+                             lambda part, first, count: [*common, signal_slots[part]])
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a

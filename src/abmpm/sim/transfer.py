@@ -74,8 +74,18 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
     return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
+def _variant(kind: str, *flags: bool):
+    # A kernel named after its variant (e.g. p2g_101): Warp's CPU graph replay finds
+    # kernels by name, so variants sharing the closure's name all replayed as the last
+    def kernel(f):
+        f.__qualname__ = kind + "_" + "".join(str(int(flag)) for flag in flags)
+        return wp.kernel(f)
+
+    return kernel
+
+
 def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
-    @wp.kernel
+    @_variant("p2g", cpic, sparse, overlap_pass)
     def p2g(
         first: int,  # this launch's first particle (sim/parallel.py)
         s: ParticleArrays,
@@ -83,7 +93,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
         color: ColorField,
-        dt: float,
+        dt_now: wp.array(dtype=float),  # [dt]: on the device, so a captured graph replays any dt
         tau_store: wp.array(dtype=wp.mat33),
         store: int,
         only_level: int,
@@ -106,6 +116,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         if wp.static(overlap_pass):
             if s.level[p] != only_level:
                 return
+        dt = dt_now[0]
         xp = s.x[p]
         base = stencil_base(g, xp)
         if wp.static(sparse):
@@ -197,7 +208,7 @@ def grid_update(
     g: GridSpec,
     colliders: ColliderArrays,
     color: ColorField,
-    dt: float,
+    dt_now: wp.array(dtype=float),  # [dt]
     grid_mv: wp.array(dtype=wp.vec3),
     grid_m: wp.array(dtype=float),
     grid_v: wp.array(dtype=wp.vec3),
@@ -210,7 +221,7 @@ def grid_update(
     m = grid_m[n]
     vi = wp.vec3(0.0)
     if m > 0.0:
-        vi = grid_mv[n] / m + dt * g.gravity
+        vi = grid_mv[n] / m + dt_now[0] * g.gravity
         xi = node_position(g, node_coords(g, n))
         if colliders.enabled != 0:
             vi = node_contact(colliders, color, g, vi, xi, n)
@@ -233,14 +244,14 @@ def grid_update(
 
 
 def _make_g2p(cpic: bool, sparse: bool):
-    @wp.kernel
+    @_variant("g2p", cpic, sparse)
     def g2p(
         first: int,  # this launch's first particle (sim/parallel.py)
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
         colliders: ColliderArrays,
         color: ColorField,
-        dt: float,
+        dt_now: wp.array(dtype=float),  # [dt]
         grid_v: wp.array(dtype=wp.vec3),
         # particle state, updated in place (each thread touches only its own particle)
         s: ParticleArrays,
@@ -251,6 +262,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         p = wp.tid() + first
         if s.level[p] != g.level:
             return
+        dt = dt_now[0]
         xp = s.x[p]
         base = stencil_base(g, xp)
         fx = stencil_offset(g, xp, base)
