@@ -61,7 +61,8 @@ def coarse(scene: Scene, dx: float = 0.05) -> Scene:
 
 def test_builtin_list():
     scenes = list_builtin_scenes()
-    assert sorted(scenes) == BUILTINS
+    # the paper's experiments (paper_*, at the paper's scale) are tested in test_compare.py
+    assert sorted(n for n in scenes if not n.startswith("paper_")) == BUILTINS
     for name, desc in scenes.items():
         assert desc, f"built-in scene {name} has no description"
 

@@ -8,6 +8,8 @@
     abmpm sweep SCENE --set KEY=V1,V2,...   a run per combination of values (a wedge)
     abmpm surface DIR            surface meshes of a finished run
     abmpm bench                  performance benchmark
+    abmpm compare SCENE          the scene in original, adaptive and finest mode, with a report
+    abmpm paper [--quick]        the paper's Table 1 experiments (compare for each)
 
 User errors (a bad scene key, a missing mesh, an unwritable folder, a scene too big
 for the machine, a blow-up) print one line ``error: <message>`` per problem on
@@ -298,6 +300,50 @@ def _cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def _cmd_compare(args) -> int:
+    """``abmpm compare SCENE`` and ``abmpm paper``: the modes of a scene side by side."""
+    from abmpm.compare import compare, run_paper
+    from abmpm.scene.loader import load_scene
+
+    if args.threads:
+        os.environ["ABMPM_THREADS"] = str(args.threads)
+    modes = tuple(args.modes or ("original", "adaptive", "finest"))
+    con = _stderr()
+
+    def on_run(i, n, scene, mode, run_dir):
+        if not args.quiet:
+            con.print(f"[{i}/{n}] {scene} {mode} -> {run_dir}", markup=False)
+
+    common = dict(modes=modes, device=args.device, frames=args.frames, progress=not args.quiet, on_run=on_run)
+    if args.command == "paper":
+        out = Path(args.out) if args.out else Path("out") / ("paper_quick" if args.quick else "paper")
+        records = run_paper(scenes=tuple(args.scenes) if args.scenes else _paper_scenes(),
+                            out=out, quick=args.quick, **common)
+    else:
+        scene = load_scene(args.scene)  # unknown scene: one-line error before any run
+        out = Path(args.out) if args.out else Path("out") / f"{scene.name}_compare"
+        records = compare(scene, out=out, quick=args.quick, **common)
+    if not args.quiet:
+        for r in records:
+            leaked = (r.get("leaks") or {}).get("total")
+            sps = r.get("steps_per_second")
+            _stdout().print(f"{_esc(r['scene'])} {r['mode']}: {r['status']}, "
+                            f"{r.get('particles_end') or 0:,} particles, "
+                            f"{'-' if sps is None else f'{sps:.1f}'} steps/s, leaked {leaked}")
+        _stdout().print(f"results: {_esc(out / 'table1.json')}, {_esc(out / 'report.md')}")
+    failed = [r for r in records if r.get("status") != "completed"]
+    if failed:
+        print(f"error: {len(failed)} of {len(records)} runs did not complete; see {out / 'report.md'}", file=sys.stderr)
+        return EXIT_ERROR
+    return EXIT_OK
+
+
+def _paper_scenes() -> tuple:
+    from abmpm.compare import PAPER_SCENES
+
+    return PAPER_SCENES
+
+
 def _print_sweep_table(rows: list[dict], out: Path) -> None:
     from rich.table import Table
 
@@ -460,6 +506,31 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--no-preview", action="store_true", help="no preview.mp4 / preview.png per run")
     w.add_argument("--quiet", "-q", action="store_true", help="no progress lines or table")
     w.set_defaults(func=_cmd_sweep)
+
+    for name in ("compare", "paper"):
+        if name == "compare":
+            c = sub.add_parser("compare", help="run a scene in original, adaptive and finest mode and compare them",
+                               description="Run SCENE in each mode into DIR/<scene>/<mode>/ and write "
+                                           "DIR/table1.json and DIR/report.md (particles, steps/s, the scene's "
+                                           "outcome figures, leaked particles, plots and a montage).")
+            c.add_argument("scene", metavar="SCENE", help="scene file (.toml) or built-in name")
+        else:
+            c = sub.add_parser("paper", help="the paper's five experiments (Table 1) in three modes, with a report",
+                               description="Run the paper scenes (paper_panel, paper_hourglass, paper_cut, "
+                                           "paper_bunny_split, paper_jelly) in each mode and write "
+                                           "DIR/table1.json and DIR/report.md next to the paper's Table 1.")
+            c.add_argument("--scenes", nargs="+", metavar="SCENE", help="which paper scenes (default: all five)")
+        c.add_argument("--modes", nargs="+", metavar="MODE",
+                       help="original, adaptive and/or finest (default: all three)")
+        c.add_argument("--quick", action="store_true",
+                       help="coarser, shorter versions of the paper scenes (~30 min for all on 2 CPU cores)")
+        c.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="frames per run (default: duration * fps)")
+        c.add_argument("--out", "-o", metavar="DIR",
+                       help="output folder (default: out/<scene>_compare/ or out/paper[_quick]/)")
+        c.add_argument("--device", "-d", metavar="DEVICE", help="cpu, cuda or cuda:N")
+        c.add_argument("--threads", "-j", type=_threads_arg, metavar="N", help="CPU threads for the step")
+        c.add_argument("--quiet", "-q", action="store_true", help="no progress")
+        c.set_defaults(func=_cmd_compare)
 
     b = sub.add_parser("bench", help="performance benchmark (options: abmpm bench --help-bench)",
                        add_help=False)

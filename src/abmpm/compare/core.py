@@ -1,0 +1,217 @@
+"""Running the modes of a scene and measuring each run (see :mod:`abmpm.compare`)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from abmpm.compare.outcomes import leaks, outcome_for
+from abmpm.compare.paper import PAPER_SCENES, QUICK_OVERRIDES
+from abmpm.errors import AbmpmError, SimulationBlowUp
+
+MODES = ("original", "adaptive", "finest")
+TABLE_FILE = "table1.json"
+REPORT_FILE = "report.md"
+
+
+def apply_overrides(scene, overrides: dict):
+    """The scene with dotted keys (``simulation.dx``, ``colliders.0.text``) set, validated
+    again like a scene file."""
+    from abmpm.scene.loader import scene_from_dict
+
+    data = scene.model_dump(mode="json")
+    for key, value in overrides.items():
+        parts = key.split(".")
+        node = data
+        for p in parts[:-1]:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        last = parts[-1]
+        if isinstance(node, list):
+            node[int(last)] = value
+        else:
+            node[last] = value
+    out = scene_from_dict(data, label=f"{scene.name} (overridden)")
+    out.base_dir = scene.base_dir
+    return out
+
+
+def quick_scene(scene):
+    """The ``--quick`` version of a paper scene (unchanged for other scenes)."""
+    return apply_overrides(scene, QUICK_OVERRIDES[scene.name]) if scene.name in QUICK_OVERRIDES else scene
+
+
+def check_modes(modes) -> tuple[str, ...]:
+    modes = tuple(modes)
+    bad = [m for m in modes if m not in MODES]
+    if bad or not modes:
+        raise AbmpmError(f"unknown mode {bad[0] if bad else '(none)'!r} (known: {', '.join(MODES)})")
+    return modes
+
+
+class FrameSeq(Sequence):
+    """``[(time, frame dict)]`` of a run folder's PLY frames, read when asked for (a
+    paper-scale finest run has too many particles to hold every frame at once); the
+    last two frames read are kept."""
+
+    def __init__(self, items: list):
+        self.items = items
+        self._cache: dict[int, dict] = {}
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return FrameSeq(self.items[i])
+        i = range(len(self.items))[i]
+        if i not in self._cache:
+            if len(self._cache) >= 2:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[i] = self.items[i][1]()
+        return self.items[i][0], self._cache[i]
+
+
+def _load_frames(run_dir: Path, fps: float) -> FrameSeq:
+    from abmpm.post.preview import disk_frames
+
+    return FrameSeq([(n / fps, load) for n, load in disk_frames(run_dir)])
+
+
+def measure(scene, run_dir: Path, summary: dict) -> dict:
+    """The record of one run: particles, speed, outcome figures and leaks."""
+    st = scene.simulation
+    mode = st.refinement.mode
+    series = summary.get("series") or {}
+    counts = [sum(c) for c in series.get("count_per_level") or [] if c is not None]
+    sim_time = float(summary.get("sim_time") or 0.0)
+    frames = _load_frames(run_dir, st.fps)
+    rec = {
+        "scene": scene.name,
+        "mode": mode,
+        "status": summary.get("status"),
+        "dx": st.dx,
+        "dx_fine": st.dx / st.refinement.factor,
+        "frames": summary.get("frames"),
+        "sim_time": sim_time,
+        "particles_mean": float(np.mean(counts)) if counts else None,
+        "particles_end": int(counts[-1]) if counts else summary.get("particle_count"),
+        "steps": summary.get("steps"),
+        "steps_per_second": summary.get("steps_per_second"),
+        "sim_seconds": summary.get("sim_seconds"),
+        "wall_seconds": summary.get("wall_seconds"),
+        "wall_seconds_per_sim_second": (summary["wall_seconds"] / sim_time
+                                        if sim_time > 0 and summary.get("wall_seconds") else None),
+        "device": summary.get("device"),
+        "run_dir": str(run_dir),
+    }
+    if frames:
+        rec["outcome"] = outcome_for(scene)(scene, frames, summary)
+        rec["leaks"] = leaks(scene, frames)
+    else:
+        rec["outcome"], rec["leaks"] = {"series": {}, "final": {}}, {}
+    return rec
+
+
+def read_table(out: Path) -> list[dict]:
+    path = Path(out) / TABLE_FILE
+    if not path.exists():
+        return []
+    try:
+        return json.loads(path.read_text()).get("records", [])
+    except (OSError, ValueError):
+        return []
+
+
+def write_table(out: Path, records: list[dict]) -> Path:
+    path = Path(out) / TABLE_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"records": records}, indent=1, default=float))
+    return path
+
+
+def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, duration: float | None = None,
+            overrides: dict | None = None, quick: bool = False, device: str | None = None,
+            progress: bool = False, on_run=None) -> list[dict]:
+    """Run ``scene`` (a Scene, file or built-in name) in each of ``modes`` into
+    ``out/<scene>/<mode>/``, measure every run, merge the records into
+    ``out/table1.json`` (replacing earlier records of the same scene and mode) and write
+    ``out/report.md``. ``quick`` applies :data:`QUICK_OVERRIDES`; ``overrides`` are more
+    dotted keys; ``duration`` sets ``simulation.duration``. Returns this scene's records."""
+    from abmpm.compare.report import scene_figures, write_report
+    from abmpm.runner import run
+    from abmpm.scene.loader import load_scene
+    from abmpm.scene.model import with_mode
+
+    modes = check_modes(modes)
+    base = load_scene(scene)
+    if quick:
+        base = quick_scene(base)
+    extra = dict(overrides or {})
+    if duration is not None:
+        extra["simulation.duration"] = duration
+    if extra:
+        base = apply_overrides(base, extra)
+    out = Path(out)
+    records = []
+    for i, mode in enumerate(modes):
+        sc = with_mode(base, mode)
+        run_dir = out / base.name / mode
+        if on_run:
+            on_run(i + 1, len(modes), base.name, mode, run_dir)
+        try:
+            summary = run(sc, run_dir, device=device, frames=frames, preview=False, progress=progress)
+        except SimulationBlowUp as exc:
+            summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() \
+                else {"status": "blew_up", "message": str(exc)}
+        rec = measure(sc, run_dir, summary)
+        rec["quick"] = bool(quick and base.name in QUICK_OVERRIDES)
+        records.append(rec)
+    scene_figures(base, records, out / base.name)
+    table = [r for r in read_table(out) if not (r.get("scene") == base.name and r.get("mode") in modes)]
+    table += records
+    write_table(out, table)
+    write_report(out, table)
+    return records
+
+
+def remeasure(out) -> list[dict]:
+    """Measure the runs recorded in ``out/table1.json`` again from their folders (their
+    ``scene.json``, ``summary.json`` and frames) and rewrite the figures, the table
+    and the report: for a changed outcome function, without running anything."""
+    from abmpm.compare.report import scene_figures, write_report
+    from abmpm.scene.loader import scene_from_dict
+
+    out = Path(out)
+    table = []
+    for old in read_table(out):
+        run_dir = Path(old["run_dir"])
+        data = json.loads((run_dir / "scene.json").read_text())
+        sc = scene_from_dict(data, label=str(run_dir / "scene.json"))
+        rec = measure(sc, run_dir, json.loads((run_dir / "summary.json").read_text()))
+        rec["quick"] = old.get("quick", False)
+        table.append(rec)
+    for name in dict.fromkeys(r["scene"] for r in table):
+        recs = [r for r in table if r["scene"] == name]
+        sc = scene_from_dict(json.loads((Path(recs[0]["run_dir"]) / "scene.json").read_text()))
+        scene_figures(sc, recs, out / name)
+    write_table(out, table)
+    write_report(out, table)
+    return table
+
+
+def run_paper(scenes=PAPER_SCENES, modes=MODES, out="out/paper", quick: bool = False, frames: int | None = None,
+              device: str | None = None, progress: bool = False, on_run=None) -> list[dict]:
+    """:func:`compare` for each of the paper's scenes."""
+    scenes = tuple(scenes)
+    bad = [s for s in scenes if s not in PAPER_SCENES]
+    if bad or not scenes:
+        raise AbmpmError(f"unknown paper scene {bad[0] if bad else '(none)'!r} (known: {', '.join(PAPER_SCENES)})")
+    check_modes(modes)
+    records = []
+    for name in scenes:
+        records += compare(name, modes, out, frames=frames, quick=quick, device=device,
+                           progress=progress, on_run=on_run)
+    return records

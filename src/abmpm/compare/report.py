@@ -1,0 +1,156 @@
+"""The figures (outcome plot, montage) and ``report.md`` of a comparison."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from abmpm.compare.outcomes import PLOTTED, outcome_for
+from abmpm.compare.paper import PAPER_GPU, PAPER_TABLE1
+
+OUTCOME_PNG = "outcome.png"
+MONTAGE_PNG = "montage.png"
+MONTAGE_COLUMNS = 4
+MODE_COLORS = {"original": "tab:blue", "adaptive": "tab:orange", "finest": "tab:green"}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_outcome(scene, records: list[dict], path: Path) -> Path | None:
+    """The scene's outcome series against time, one line per mode (None: no series)."""
+    key = PLOTTED.get(outcome_for(scene))
+    lines = [(r["mode"], r["outcome"]["series"]) for r in records if key in r["outcome"].get("series", {})]
+    if not key or not lines:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for mode, s in lines:
+        t = s.get("time") or s.get("ke_time") or list(range(len(s[key])))
+        ax.plot(t[: len(s[key])], s[key], label=mode, color=MODE_COLORS.get(mode))
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(key.replace("_", " ") + (" (J)" if key == "kinetic_energy" else " (fraction of mass)"))
+    ax.set_title(f"{scene.name}: {key.replace('_', ' ')}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_montage(scene, records: list[dict], path: Path, columns: int = MONTAGE_COLUMNS) -> Path | None:
+    """The modes (rows) at the same output frames (columns), drawn like the preview."""
+    from abmpm.post.camera import Camera
+    from abmpm.post.preview import PREVIEW_SIZE, disk_frames, frame_image, region_lines
+
+    runs = [(r["mode"], Path(r["run_dir"])) for r in records]
+    sources = {mode: dict(disk_frames(d)) for mode, d in runs}
+    common = sorted(set.intersection(*(set(s) for s in sources.values()))) if sources else []
+    if not common:
+        return None
+    picks = sorted({common[int(round(i))] for i in np.linspace(0, len(common) - 1, min(columns, len(common)))})
+    st = scene.simulation
+    camera = Camera.framing_box(st.domain_min, st.domain_max, *PREVIEW_SIZE)
+    plt = _plt()
+    fig, axes = plt.subplots(len(runs), len(picks), figsize=(3.2 * len(picks), 2.5 * len(runs)), squeeze=False)
+    for i, (mode, d) in enumerate(runs):
+        lines = region_lines(d)
+        for j, n in enumerate(picks):
+            ax = axes[i][j]
+            ax.imshow(frame_image(scene, sources[mode][n](), camera, lines=lines))
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(mode)
+            if i == 0:
+                ax.set_title(f"t = {n / st.fps:.2f} s", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def scene_figures(scene, records: list[dict], folder: Path) -> dict:
+    """Write the outcome plot and the montage of one scene; returns their paths."""
+    out = {}
+    p = plot_outcome(scene, records, folder / OUTCOME_PNG)
+    if p:
+        out["outcome"] = p
+    p = plot_montage(scene, records, folder / MONTAGE_PNG)
+    if p:
+        out["montage"] = p
+    return out
+
+
+def _num(v, fmt: str) -> str:
+    return "–" if v is None else format(v, fmt)
+
+
+def _finals(final: dict) -> str:
+    parts = []
+    for k, v in final.items():
+        if isinstance(v, float):
+            parts.append(f"{k} {v:.4g}")
+        elif isinstance(v, list):
+            parts.append(f"{k} [" + ", ".join(f"{x:.3g}" for x in v) + "]")
+        else:
+            parts.append(f"{k} {v if v is not None else '–'}")
+    return "; ".join(parts) or "–"
+
+
+def render_report(out: Path, records: list[dict]) -> str:
+    scenes = list(dict.fromkeys(r["scene"] for r in records))
+    lines = ["# Mode comparison (after the paper's Table 1)", ""]
+    devices = sorted({str(r.get("device")) for r in records})
+    lines += [f"Runs on: {', '.join(devices)}. Paper: {PAPER_GPU}. Particles: ours mean / at the end; "
+              "the paper's counts and steps/s are from its Table 1.", ""]
+    lines += ["| scene | mode | dx | dx' | particles mean | particles end | paper particles | steps/s | "
+              "paper steps/s | wall s per sim s | leaked | status |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        paper = PAPER_TABLE1.get(r["scene"], {})
+        pp = paper.get("particles", {}).get(r["mode"])
+        ps = paper.get("steps_per_second", {}).get(r["mode"])
+        leaked = r.get("leaks", {}).get("total")
+        label = r["scene"] + (" (quick)" if r.get("quick") else "")
+        lines.append(
+            f"| {label} | {r['mode']} | {r['dx']:.4g} | {r['dx_fine']:.4g} "
+            f"| {_num(r.get('particles_mean'), ',.0f')} "
+            f"| {_num(r.get('particles_end'), ',')} | {_num(pp, ',')} | {_num(r.get('steps_per_second'), '.1f')} "
+            f"| {_num(ps, '.1f')} | {_num(r.get('wall_seconds_per_sim_second'), '.0f')} | {_num(leaked, 'd')} "
+            f"| {r.get('status')} |"
+        )
+    for name in scenes:
+        recs = [r for r in records if r["scene"] == name]
+        paper = PAPER_TABLE1.get(name)
+        lines += ["", f"## {name}" + (f" ({paper['figure']})" if paper else ""), ""]
+        lines += ["| mode | outcome | leaks |", "|---|---|---|"]
+        for r in recs:
+            lk = ", ".join(f"{k} {v}" for k, v in (r.get("leaks") or {}).items()) or "–"
+            lines.append(f"| {r['mode']} | {_finals(r.get('outcome', {}).get('final', {}))} | {lk} |")
+        for fig, title in ((OUTCOME_PNG, "outcome against time"), (MONTAGE_PNG, "the modes at matching times")):
+            if (out / name / fig).exists():
+                lines += ["", f"![{name}: {title}]({name}/{fig})"]
+    lines += ["", "Leaks counted: particles not finite or more than half a coarse cell outside the domain in the last "
+              "frame; for a letter "
+              "panel, particles that crossed its plane between two output frames at a point of solid panel more "
+              "than one coarse cell from a hole or edge; for an hourglass, particles of the last frame more than "
+              "one coarse cell outside the glass that never were above its open mouth (`over_the_mouth`: "
+              "splashed out over the rim, not counted).", ""]
+    return "\n".join(lines)
+
+
+def write_report(out: Path, records: list[dict]) -> Path:
+    path = Path(out) / "report.md"
+    path.write_text(render_report(Path(out), records))
+    return path

@@ -1,0 +1,220 @@
+"""abmpm.compare: outcome figures on synthetic particles, a tiny comparison run, the
+paper scenes and their quick versions, and the CLI's errors."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from abmpm.cli import main
+from abmpm.compare import (
+    MODES,
+    PAPER_SCENES,
+    PAPER_TABLE1,
+    QUICK_OVERRIDES,
+    apply_overrides,
+    compare,
+    quick_scene,
+    remeasure,
+)
+from abmpm.compare.outcomes import (
+    cut_gap,
+    escaped,
+    hourglass_outside,
+    mass_beyond_plane,
+    panel_crossings_through_material,
+    pieces,
+)
+from abmpm.geometry.transforms import euler_matrix
+from abmpm.scene.loader import load_scene
+from abmpm.scene.model import BoxBody, Elastic, Scene, SimulationSettings, with_mode
+
+
+def _block(lo, hi, h):
+    axes = [np.arange(a + h / 2, b, h) for a, b in zip(lo, hi)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+# --------------------------------------------------------------------------- measuring
+
+
+def test_mass_beyond_plane():
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    m = np.array([1.0, 1.0, 1.0, 5.0])
+    assert mass_beyond_plane(x, m, (1.5, 0, 0), (1, 0, 0)) == pytest.approx(6 / 8)
+    assert mass_beyond_plane(x, m, (1.5, 0, 0), (-1, 0, 0)) == pytest.approx(2 / 8)
+
+
+def test_pieces_counts_separate_blocks_and_ignores_debris():
+    h = 0.01
+    a = _block((0, 0, 0), (0.1, 0.1, 0.1), h)
+    b = _block((0.2, 0, 0), (0.3, 0.1, 0.1), h)
+    assert pieces(a)[0] == 1
+    x = np.concatenate([a, b, [[0.5, 0.5, 0.5]]])  # one stray particle: debris, not a piece
+    n, labels = pieces(x)
+    assert n == 2
+    assert len(set(labels[: len(a)])) == 1 and labels[0] != labels[len(a)]
+    # blocks closer than 1.5 spacings are one piece
+    c = _block((0.1 + h / 4, 0, 0), (0.2, 0.1, 0.1), h)  # 1.25 spacings apart
+    assert pieces(np.concatenate([a, c]))[0] == 1
+
+
+def test_pieces_cut_by_a_blade_between_them():
+    h = 0.01
+    a = _block((0, 0, 0), (0.1, 0.1, 0.1), h)
+    b = _block((0.1, 0, 0), (0.2, 0.1, 0.1), h)  # touching: one piece
+    x = np.concatenate([a, b])
+    assert pieces(x)[0] == 1
+    blade = (np.array([0.1, 0.05, 0.05]), euler_matrix((0.0, 90.0, 0.0)), 0.2, 0.2)  # the plane x = 0.1
+    assert pieces(x, walls=[blade])[0] == 2
+    short = (np.array([0.1, 0.1, 0.05]), euler_matrix((0.0, 90.0, 0.0)), 0.2, 0.08)  # reaches y = 0.06 only
+    assert pieces(x, walls=[short])[0] == 1
+
+
+def test_cut_gap_width_and_roughness():
+    h = 0.01
+    left = _block((-0.2, 0, 0), (-0.05, 0.1, 0.1), h)   # last layer at x = -0.055
+    right = _block((0.05, 0, 0), (0.2, 0.1, 0.1), h)    # first layer at x = 0.055
+    x = np.concatenate([left, right])
+    g = cut_gap(x, (0, 0, 0), (1, 0, 0), bin_size=0.02, band=0.1)
+    assert g["width"] == pytest.approx(0.11)
+    assert g["roughness"] == pytest.approx(0.0, abs=1e-12)
+    assert g["bins"] == 25
+    # a jagged face: every other bin of the right face one layer deeper
+    jag = right[~((right[:, 0] < 0.06) & (np.floor(right[:, 1] / 0.02) % 2 == 0))]
+    g2 = cut_gap(np.concatenate([left, jag]), (0, 0, 0), (1, 0, 0), bin_size=0.02, band=0.1)
+    assert g2["roughness"] > 0.001
+    # nothing on one side: no cut measured
+    assert cut_gap(left, (0, 0, 0), (1, 0, 0), 0.02, 0.1)["width"] is None
+
+
+def _scene(**kw):
+    return Scene(
+        name=kw.pop("name", "tiny_cmp"),
+        simulation=SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.05, duration=0.2, **kw),
+        materials=[Elastic(name="jelly", youngs_modulus=1.0e4)],
+        bodies=[BoxBody(material="jelly", min=(0.1, 0.0, 0.1), max=(0.3, 0.15, 0.3))],
+    )
+
+
+def test_escaped_counts_non_finite_and_outside():
+    x = np.array([[0.1, 0.1, 0.1], [np.nan, 0.1, 0.1], [0.5, 0.1, 0.1], [0.2, -0.03, 0.2], [0.2, -0.02, 0.2]])
+    assert escaped(x, _scene()) == 3  # 2 cm below the floor is within half a cell (dx 5 cm)
+
+
+def test_hourglass_outside_uses_the_glass_profile():
+    s = load_scene("hourglass")  # neck (radius 0.015) at (0.2, 0.35, 0.2)
+    x = np.array([[0.2, 0.35, 0.2], [0.2 + 0.05, 0.35, 0.2], [0.2 + 0.12, 0.2, 0.2], [0.39, 0.69, 0.39]])
+    # inside at the neck; 5 cm off the axis at the neck is outside; inside the lower bulb;
+    # above the mouth (outside the glass's height) is not counted
+    assert hourglass_outside(s, x, margin=0.025) == 1
+
+
+def test_panel_crossings_through_solid_panel_are_leaks():
+    from abmpm.geometry.glyphs import letter_hole_polygons
+
+    s = load_scene("letter_panel")  # panel 1.2 x 0.6 centred at (0.6, 0.3, 0.4), normal z
+    hole = letter_hole_polygons("MPM", (1.2, 0.6))[0].representative_point()
+    through_hole = (0.6 + hole.x, 0.3 + hole.y)
+    solid = (0.6 - 0.55, 0.3 - 0.25)  # a corner of the panel, far from any letter
+    x0 = np.array([[*through_hole, 0.35], [*solid, 0.35], [*solid, 0.30]])
+    x1 = np.array([[*through_hole, 0.45], [*solid, 0.45], [*solid, 0.38]])  # the third stays in front
+
+    def frame(x):
+        return {"x": x, "id": np.arange(len(x)), "mass": np.ones(len(x))}
+
+    assert panel_crossings_through_material(s, [(0.0, frame(x0)), (0.1, frame(x1))], margin=0.03) == 1
+
+
+def test_hourglass_splash_over_the_rim_is_not_a_leak():
+    from abmpm.compare.outcomes import leaks
+
+    s = load_scene("hourglass")  # the glass spans y 0.05 to 0.65; bulbs of radius 0.15 about (0.2, 0.2)
+    inside = [0.2, 0.2, 0.2]
+    f0 = {"x": np.array([[0.2, 0.7, 0.2], [0.2, 0.5, 0.2], inside]), "id": np.array([0, 1, 2])}
+    f1 = {"x": np.array([[0.39, 0.5, 0.2], [0.2, 0.5, 0.39], inside]), "id": np.array([0, 1, 2])}  # 0 and 1 outside
+    for f in (f0, f1):
+        f["mass"] = np.ones(3)
+    out = leaks(s, [(0.0, f0), (0.1, f1)])
+    assert out["outside_glass"] == 1 and out["over_the_mouth"] == 1 and out["total"] == 1
+
+
+# --------------------------------------------------------------------------- a comparison
+
+
+def test_compare_tiny_scene_writes_table_and_report(tmp_path):
+    out = tmp_path / "cmp"
+    recs = compare(_scene(), modes=("original", "finest"), out=out, frames=2, device="cpu")
+    assert [r["mode"] for r in recs] == ["original", "finest"]
+    table = json.loads((out / "table1.json").read_text())["records"]
+    assert len(table) == 2
+    for r in table:
+        for key in ("scene", "mode", "particles_mean", "particles_end", "steps_per_second",
+                    "wall_seconds_per_sim_second", "outcome", "leaks", "status"):
+            assert key in r, key
+        assert r["status"] == "completed"
+        assert r["leaks"]["total"] == 0
+        assert "mass_below_mid_height" in r["outcome"]["final"]
+    orig, fine = table
+    assert fine["particles_end"] == 8 * orig["particles_end"]  # b = 2: 8 times the particles
+    report = (out / "report.md").read_text()
+    links = re.findall(r"\]\(([^)]+\.png)\)", report)
+    assert links and all((out / link).is_file() for link in links)
+    assert "tiny_cmp" in report and "finest" in report
+    # a second comparison of another mode adds to the table
+    compare(_scene(), modes=("adaptive",), out=out, frames=1, device="cpu")
+    modes = [r["mode"] for r in json.loads((out / "table1.json").read_text())["records"]]
+    assert sorted(modes) == ["adaptive", "finest", "original"]
+    # measured again from the run folders alone: the same figures
+    again = remeasure(out)
+    assert [r["particles_end"] for r in again] == [r["particles_end"] for r in
+                                                    json.loads((out / "table1.json").read_text())["records"]]
+
+
+# --------------------------------------------------------------------------- paper scenes
+
+
+@pytest.mark.parametrize("name", PAPER_SCENES)
+def test_paper_scene_and_its_quick_version_validate(name):
+    s = load_scene(name)
+    assert s.name == name and name in PAPER_TABLE1
+    q = quick_scene(s)
+    assert q.simulation.dx > s.simulation.dx
+    assert q.simulation.duration <= s.simulation.duration
+    for mode in MODES:
+        with_mode(q, mode).check_feasible(mode, "cpu")
+    assert set(QUICK_OVERRIDES) == set(PAPER_SCENES)
+
+
+@pytest.mark.parametrize("name", PAPER_SCENES)
+def test_paper_scene_quick_version_steps(name):
+    from abmpm.scene.loader import list_builtin_scenes
+    from abmpm.simulation import Simulation
+
+    assert list_builtin_scenes()[name].startswith("Paper Fig.")
+    sim = Simulation(quick_scene(load_scene(name)), device="cpu")  # adaptive, as the scene says
+    for _ in range(2):
+        sim.step()
+    p = sim.particles()
+    assert np.isfinite(p.x).all() and np.isfinite(p.v).all()
+
+
+def test_apply_overrides_sets_list_items():
+    s = apply_overrides(load_scene("paper_panel"), {"colliders.0.text": "AB", "simulation.dx": 0.02})
+    assert s.colliders[0].text == "AB" and s.simulation.dx == 0.02
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["compare", "tiny_no_such_scene"], "unknown scene"),
+    (["compare", "paper_cut", "--modes", "coarse"], "unknown mode"),
+    (["paper", "--scenes", "paper_nope"], "unknown paper scene"),
+])
+def test_cli_errors(argv, word, capsys, tmp_path):
+    assert main(argv + ["--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and word in err[0]
+    assert not (tmp_path / "x").exists()
