@@ -144,7 +144,7 @@ def test_thick_floor_reads_one_and_is_not_refined():
     centre = kde_density(p, w, node(16, 12, 16), h)[0]
     # 1.0 exactly for an infinite wall; 5% covers sampling (measured ~1%)
     assert centre == pytest.approx(1.0, rel=0.05)
-    cells, lam = refinement_region([floor], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
+    cells, lam = refinement_region([floor], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0, criterion="density"))
     assert not cells.any()
     # edges and corners read higher than the face (measured ~1.27 just inside them),
     # but stay under the default threshold
@@ -162,7 +162,7 @@ def test_zero_thickness_sheet_reads_two_and_is_refined():
     # the rim reads the sheet's value too (line term); 5% for sampling and the corner
     # quarter 4 h away
     assert kde_density(p, w, [[0.75, 0.5, 0.5]], h)[0] == pytest.approx(2.0, rel=0.05)
-    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
+    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0, criterion="density"))
     assert cells[8:24, 15:17, 8:24].all()  # every cell the sheet touches
     assert not cells[:, :13, :].any() and not cells[:, 19:, :].any()
 
@@ -174,7 +174,7 @@ def test_thin_closed_plate_reads_two_and_is_refined():
     p, w = surface_samples(plate, h)
     # two faces 0.05 h from the node: 2 exp(-0.05^2 / 2) = 1.9975; 3% for sampling
     assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(2.0, rel=0.03)
-    cells, _ = refinement_region([plate], [True], (0, 0, 0), DX, DIMS)
+    cells, _ = refinement_region([plate], [True], (0, 0, 0), DX, DIMS, RegionParams(criterion="density"))
     assert cells[9:23, 15:17, 9:23].all()
 
 
@@ -185,7 +185,8 @@ def test_open_flag_and_refine_flag():
     assert kde_density(p, w, node(16, 16, 16), h)[0] == pytest.approx(1.0, rel=0.03)
     cells, lam = refinement_region([sheet], [False], (0, 0, 0), DX, DIMS)
     assert not cells.any() and not lam.any()
-    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, open_flags=[False])
+    cells, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(criterion="density"),
+                                 open_flags=[False])
     assert not cells.any()  # a one-sided surface is a wall, rims included
 
 
@@ -210,7 +211,7 @@ def test_letter_panel_refined_around_every_hole_rim():
         panel = C.letter_panel("ABC", size=(0.8, 0.4), center=(0.5, 0.5, 0.5 + shift))
         loops = boundary_loops(panel)
         assert len(loops) >= 6  # outline, 3 letters, inner islands
-        cells, _ = refinement_region([panel], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0))
+        cells, _ = refinement_region([panel], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0, criterion="density"))
         for loop in loops:
             ijk = np.floor(panel.vertices[loop] / dx).astype(int)
             assert cells[ijk[:, 0], ijk[:, 1], ijk[:, 2]].all()
@@ -225,7 +226,7 @@ def test_hourglass_neck_refined_bulbs_not():
     glass = C.hourglass(height=0.9, radius=0.3, neck_radius=0.9 * dx, wall_thickness=2.2 * dx, center=(0.5, 0.5, 0.5))
     p, w = surface_samples(glass, dx)
     assert kde_density(p, w, node(32, 32, 32, dx), dx)[0] > 1.5
-    cells, _ = refinement_region([glass], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0))
+    cells, _ = refinement_region([glass], [True], (0, 0, 0), dx, (65, 65, 65), RegionParams(halo=0, criterion="density"))
     assert cells[31:33, 31:33, 31:33].all()  # the cells around the axis at the neck
     # the wide part of both bulbs (y within 0.125-0.3 of the neck) is not refined:
     # a wall 2.2 h thick reads ~1.1 at most
@@ -234,15 +235,15 @@ def test_hourglass_neck_refined_bulbs_not():
 
 def test_explicit_boxes_add_cells():
     box = ((0.2, 0.1, 0.3), (0.4, 0.25, 0.5))
-    cells, lam = refinement_region([], [], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box]))
+    cells, lam = refinement_region([], [], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box], criterion="density"))
     centres = (np.arange(32) + 0.5) * DX
     expect = [((c >= lo) & (c <= hi)) for c, lo, hi in zip([centres] * 3, box[0], box[1])]
     want = expect[0][:, None, None] & expect[1][None, :, None] & expect[2][None, None, :]
     np.testing.assert_array_equal(cells, want)
     assert want.sum() == 7 * 5 * 6 and not lam.any()  # centres 6.5..12.5, 3.5..7.5, 10.5..15.5 dx
     sheet = C.sheet(size=(0.3, 0.3), center=(0.5, 0.8, 0.5))
-    alone, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS)
-    both, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box]))
+    alone, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(criterion="density"))
+    both, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(boxes=[box], criterion="density"))
     np.testing.assert_array_equal(both, alone | want)
 
 
@@ -256,8 +257,8 @@ def test_halo_grows_by_exactly_halo_cells():
         np.testing.assert_array_equal(idx.max(0), [10 + halo] * 3)
         assert cells.sum() == (2 + 2 * halo) ** 3
     sheet = C.sheet(size=(0.4, 0.4), center=(0.5, 0.5, 0.5))
-    c0, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0))
-    c2, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=2))
+    c0, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=0, criterion="density"))
+    c2, _ = refinement_region([sheet], [True], (0, 0, 0), DX, DIMS, RegionParams(halo=2, criterion="density"))
     np.testing.assert_array_equal(c2, ndimage.binary_dilation(c0, np.ones((3, 3, 3), bool), iterations=2))
     lo0, hi0 = np.argwhere(c0).min(0), np.argwhere(c0).max(0)
     lo2, hi2 = np.argwhere(c2).min(0), np.argwhere(c2).max(0)
@@ -299,3 +300,132 @@ def test_grid_density_speed():
     on_surface = np.abs(np.linalg.norm(np.argwhere(np.ones(lam.shape, bool)) * dx - 0.5, axis=1) - 0.3) < 0.1 * dx
     assert on_surface.sum() > 50
     np.testing.assert_allclose(lam.reshape(-1)[on_surface], 1.0, rtol=0.05)
+
+
+# ----------------------------------------------------------------------------- feature size
+#
+# criterion = "feature" (the default): cells are refined around free space narrower than
+# gap_cells (3) coarse cells and around the edges of moving colliders, then grown by the
+# halo (1). The grid is [0, 1]^3 with walls on its faces; DX = 1/32.
+
+WALLS = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+
+
+def feature(meshes, halo=1, moving=None, **kw):
+    cells, _ = refinement_region(meshes, [True] * len(meshes), (0, 0, 0), DX, DIMS,
+                                 RegionParams(**{"halo": halo, "walls": WALLS, **kw}), moving_flags=moving)
+    return cells
+
+
+def cell_centres(cells):
+    return (np.argwhere(cells) + 0.5) * DX
+
+
+def sheet_with_hole(radius, y=0.5 + 0.3 * DX):
+    """A sheet spanning the domain at height y with a round hole at (0.5, 0.5)."""
+    import shapely.geometry as sg
+
+    poly = sg.box(0, 0, 1, 1).difference(sg.Point(0.5, 0.5).buffer(radius, 32))
+    v2, f = trimesh.creation.triangulate_polygon(poly)
+    v = np.column_stack([v2[:, 0], np.full(len(v2), y), v2[:, 1]])
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def test_feature_flat_sheet_spanning_the_domain_is_not_refined():
+    # free on both sides, its rim touches the walls (a contact, not a gap): nothing at
+    # all; the density criterion refines it everywhere
+    sheet = C.sheet(size=(1.0, 1.0), center=(0.5, 0.5 + 0.3 * DX, 0.5))
+    assert not feature([sheet]).any()
+    assert feature([sheet], criterion="density").sum() >= 32 * 32 * 2
+    # a free-floating sheet and a thin closed plate: nothing either
+    assert not feature([C.sheet(size=(0.5, 0.5), center=(0.5, 0.5, 0.5))]).any()
+    assert not feature([C.thin_box(size=(0.5, 0.1 * DX, 0.5), center=(0.5, 0.5, 0.5))]).any()
+    # "both" is the union: the density's cells
+    both = feature([sheet], criterion="both")
+    np.testing.assert_array_equal(both, feature([sheet], criterion="density"))
+
+
+def test_feature_sheet_refined_around_its_small_hole_only():
+    r = 1.2 * DX  # a hole 2.4 coarse cells across
+    cells = feature([sheet_with_hole(r)])
+    assert cells.any()
+    c = cell_centres(cells)
+    # every refined cell lies within the hole's radius + halo + one cell of its axis
+    # (the marks are the rim, the middle and the far side of each narrow width)
+    dist = np.hypot(c[:, 0] - 0.5, c[:, 2] - 0.5)
+    assert dist.max() < r + 2.5 * DX
+    assert np.abs(c[:, 1] - 0.5).max() < 2.5 * DX
+    # the hole's cells (4 x 4 columns around the axis, both sides of the sheet) are in
+    assert cells[15:17, 15:17, 15:17].all()
+    assert cells.sum() <= 8 * 6 * 8  # a few cells around the hole, of 32^2 x 2 the sheet touches
+    # a hole 10 cells across is wide: not refined (corners of the hole do not exist on a circle)
+    assert not feature([sheet_with_hole(5 * DX)]).any()
+
+
+def test_feature_slit_between_two_plates_refined_plates_not():
+    for slit in (0.5 * DX, 1.5 * DX):
+        half = (1.0 - slit) / 2
+        for make in (lambda s, c: C.sheet(size=s, center=c),
+                     lambda s, c: C.thin_box(size=(s[0], 0.004, s[1]), center=c)):
+            plates = [make((half, 1.0), (half / 2, 0.5, 0.5)), make((half, 1.0), (1 - half / 2, 0.5, 0.5))]
+            cells = feature(plates)
+            c = cell_centres(cells)
+            # the slit's columns (x within the slit +- 1 cell, y at the plates), all z
+            assert cells[15:17, 15:17, :].all()
+            # nothing further than slit/2 + halo + 1 cell from the slit's middle
+            assert np.abs(c[:, 0] - 0.5).max() < slit / 2 + 2.5 * DX
+            assert np.abs(c[:, 1] - 0.5).max() < 2.5 * DX
+
+
+def test_feature_wide_gap_not_refined_narrow_parallel_gap_refined():
+    g = 10 * DX
+    half = (1.0 - g) / 2
+    plates = [C.sheet(size=(half, 1.0), center=(half / 2, 0.5, 0.5)),
+              C.sheet(size=(half, 1.0), center=(1 - half / 2, 0.5, 0.5))]
+    assert not feature(plates).any()
+    far = [C.sheet(size=(0.6, 0.6), center=(0.5, 0.3, 0.5)), C.sheet(size=(0.6, 0.6), center=(0.5, 0.3 + g, 0.5))]
+    assert not feature(far).any()
+    near = [C.sheet(size=(0.6, 0.6), center=(0.5, 0.5, 0.5)), C.sheet(size=(0.6, 0.6), center=(0.5, 0.5 + 2 * DX, 0.5))]
+    cells = feature(near)
+    assert cells[12:20, 16:18, 12:20].all()  # between the two sheets
+    # a sheet 2 cells above the floor (a wall): the gap below it is refined
+    low = feature([C.sheet(size=(0.6, 0.6), center=(0.5, 2 * DX + 0.3 * DX, 0.5))])
+    assert low[12:20, 0:2, 12:20].all() and not low[:, 5:, :].any()
+    assert not feature([C.sheet(size=(0.6, 0.6), center=(0.5, 2 * DX + 0.3 * DX, 0.5))], walls=None).any()
+
+
+def test_feature_hourglass_neck_refined_bulbs_not():
+    # neck radius ~1 coarse cell: the width across it (2 cells) is narrow; the bulbs
+    # (up to 0.6 m across, 6 cells from the walls at their widest) are not. Outside,
+    # the waist is a concave wedge (~96 degrees) between the two cones, narrow within
+    # ~3 cells of its apex ring: that ring is refined too (radius < 7 cells)
+    glass = C.hourglass(height=0.6, radius=0.3, neck_radius=1.0 * DX, center=(0.5, 0.5, 0.5))
+    cells = feature([glass])
+    assert cells[15:17, 15:17, 15:17].all()  # the neck
+    c = cell_centres(cells)
+    assert np.abs(c[:, 1] - 0.5).max() < 6 * DX  # the neck +- a few cells, not the bulbs
+    assert np.hypot(c[:, 0] - 0.5, c[:, 2] - 0.5).max() < 7 * DX
+    assert cells.sum() < 0.02 * cells.size
+
+
+def test_feature_moving_blade_edges_refined():
+    blade = C.thin_box(size=(0.4, 0.3, 0.1 * DX), center=(0.5, 0.5, 0.5 + 0.3 * DX))
+    assert not feature([blade]).any()  # static: a thin plate in free space
+    cells = feature([blade], halo=0, moving=[True])
+    c = cell_centres(cells)
+    # the cells along its 12 edges (the rims of the 0.4 x 0.3 faces): the middle of
+    # the faces stays coarse
+    assert cells.any() and not cells[12:20, 13:19, :].any()
+    d_edge = np.minimum(np.abs(np.abs(c[:, 0] - 0.5) - 0.2), np.abs(np.abs(c[:, 1] - 0.5) - 0.15))
+    assert d_edge.max() < DX
+
+
+def test_feature_criterion_checked_and_scene_default():
+    from abmpm.scene.model import Refinement
+
+    with pytest.raises(ValueError):
+        RegionParams(criterion="nope")
+    with pytest.raises(ValueError):
+        RegionParams(gap_cells=0.0)
+    assert RegionParams().criterion == "feature" and Refinement().criterion == "feature"
+    assert Refinement().gap_cells == 3.0

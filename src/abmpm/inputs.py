@@ -65,7 +65,9 @@ def rigid_bodies(scene: Scene) -> list[RigidBody]:
 
 def region_params(scene: Scene) -> RegionParams:
     r = scene.simulation.refinement
-    return RegionParams(bandwidth=r.bandwidth, threshold=r.threshold, halo=r.halo, boxes=tuple(r.boxes))
+    st = scene.simulation
+    return RegionParams(bandwidth=r.bandwidth, threshold=r.threshold, halo=r.halo, boxes=tuple(r.boxes),
+                        criterion=r.criterion, gap_cells=r.gap_cells, walls=(st.domain_min, st.domain_max))
 
 
 def skew(w) -> np.ndarray:

@@ -206,12 +206,15 @@ class Simulation:
         )
 
     def refinement_cells(self) -> np.ndarray:
-        """Refined coarse cells B_s now: boundary density of the colliders marked for
-        refinement (Eqs. 26-27) plus the scene's boxes."""
+        """Refined coarse cells B_s now: narrow free space and moving edges of the
+        colliders marked for refinement, or their boundary density (Eqs. 26-27),
+        as ``refinement.criterion`` says, plus the scene's boxes."""
         g = self.solver.grid
         meshes = self.colliders.body_meshes() if self.colliders is not None else []
         flags = [c.refine for c in self.scene.colliders]
-        cells, _ = refinement_region(meshes, flags, g.origin, g.dx, np.array(g.dims), region_params(self.scene))
+        moving = [not c.motion.is_static for c in self.scene.colliders]
+        cells, _ = refinement_region(meshes, flags, g.origin, g.dx, np.array(g.dims), region_params(self.scene),
+                                     moving_flags=moving)
         return cells
 
     @property

@@ -123,6 +123,12 @@ class Refinement(_Strict):
         "original", description="original: coarse grid only; adaptive: refine near boundaries; finest: all fine"
     )
     factor: int = Field(2, ge=2, le=4, description="b: the fine grid spacing is dx / b")
+    criterion: Literal["feature", "density", "both"] = Field(
+        "feature",
+        description="feature: refine around free space narrower than gap_cells and around moving edges; "
+        "density: the paper's boundary density alone (refines whole sheets); both: their union",
+    )
+    gap_cells: float = Field(3.0, gt=0, description="feature criterion: gaps narrower than this (coarse cells) are refined")
     threshold: float = Field(1.5, gt=0, description="boundary density above which coarse cells are refined")
     bandwidth: float = Field(1.0, gt=0, description="Gaussian bandwidth h of the density, in coarse cells")
     halo: int = Field(1, ge=0, description="refined cells grow by this many coarse cells")
