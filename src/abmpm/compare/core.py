@@ -19,23 +19,10 @@ REPORT_FILE = "report.md"
 
 def apply_overrides(scene, overrides: dict):
     """The scene with dotted keys (``simulation.dx``, ``colliders.0.text``) set, validated
-    again like a scene file."""
-    from abmpm.scene.loader import scene_from_dict
+    again like a scene file (the same overrides as ``abmpm sweep --set``)."""
+    from abmpm.sweep import scene_source
 
-    data = scene.model_dump(mode="json")
-    for key, value in overrides.items():
-        parts = key.split(".")
-        node = data
-        for p in parts[:-1]:
-            node = node[int(p)] if isinstance(node, list) else node[p]
-        last = parts[-1]
-        if isinstance(node, list):
-            node[int(last)] = value
-        else:
-            node[last] = value
-    out = scene_from_dict(data, label=f"{scene.name} (overridden)")
-    out.base_dir = scene.base_dir
-    return out
+    return scene_source(scene).build(overrides, label=f"{scene.name} (overridden)")
 
 
 def quick_scene(scene):
@@ -182,21 +169,19 @@ def remeasure(out) -> list[dict]:
     ``scene.json``, ``summary.json`` and frames) and rewrite the figures, the table
     and the report: for a changed outcome function, without running anything."""
     from abmpm.compare.report import scene_figures, write_report
-    from abmpm.scene.loader import scene_from_dict
+    from abmpm.io.outdir import scene_from_folder
 
     out = Path(out)
-    table = []
+    table, scenes = [], {}
     for old in read_table(out):
         run_dir = Path(old["run_dir"])
-        data = json.loads((run_dir / "scene.json").read_text())
-        sc = scene_from_dict(data, label=str(run_dir / "scene.json"))
+        sc = scene_from_folder(run_dir)
         rec = measure(sc, run_dir, json.loads((run_dir / "summary.json").read_text()))
         rec["quick"] = old.get("quick", False)
         table.append(rec)
-    for name in dict.fromkeys(r["scene"] for r in table):
-        recs = [r for r in table if r["scene"] == name]
-        sc = scene_from_dict(json.loads((Path(recs[0]["run_dir"]) / "scene.json").read_text()))
-        scene_figures(sc, recs, out / name)
+        scenes.setdefault(rec["scene"], sc)
+    for name, sc in scenes.items():
+        scene_figures(sc, [r for r in table if r["scene"] == name], out / name)
     write_table(out, table)
     write_report(out, table)
     return table

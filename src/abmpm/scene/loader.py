@@ -27,7 +27,7 @@ from pydantic import ValidationError
 from abmpm.errors import SceneError
 from abmpm.scene import model as sm
 
-__all__ = ["load_scene", "list_builtin_scenes", "builtin_scene_path", "format_validation_error"]
+__all__ = ["load_scene", "read_scene_document", "list_builtin_scenes", "builtin_scene_path", "format_validation_error"]
 
 _BUILTIN_PACKAGE = "abmpm.scene"
 _BUILTIN_FOLDER = "builtin"
@@ -104,30 +104,34 @@ def load_scene(path_or_name: str | os.PathLike) -> sm.Scene:
     """
     if isinstance(path_or_name, sm.Scene):
         return path_or_name
+    data, label, path = read_scene_document(path_or_name)
+    return scene_from_dict(data, label=label, base_dir=path.parent, default_name=path.stem)
+
+
+def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any], str, Path]:
+    """The parsed TOML of a scene file or a built-in scene, not yet validated:
+    ``(document, label for errors, path of the file)``. SceneError for a missing or
+    unreadable file, a TOML syntax error or an unknown built-in name."""
     text = os.fspath(path_or_name)
     path = Path(text).expanduser()
-    if path.is_file():
-        return _load_file(path, label=text)
-    if path.exists():
-        raise SceneError(f"{text}: is not a file")
-    looks_like_path = path.suffix.lower() == ".toml" or os.sep in text or (os.altsep and os.altsep in text)
-    if looks_like_path:
-        raise SceneError(f"{text}: scene file not found")
-    return _load_file(builtin_scene_path(text), label=f"{text} (built-in)")
-
-
-def _load_file(path: Path, label: str) -> sm.Scene:
+    label = text
+    if not path.is_file():
+        if path.exists():
+            raise SceneError(f"{text}: is not a file")
+        looks_like_path = path.suffix.lower() == ".toml" or os.sep in text or (os.altsep and os.altsep in text)
+        if looks_like_path:
+            raise SceneError(f"{text}: scene file not found")
+        path, label = builtin_scene_path(text), f"{text} (built-in)"
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{label}: cannot read file ({exc.strerror or exc})") from exc
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        return tomllib.loads(raw.decode("utf-8")), label, path
     except UnicodeDecodeError as exc:
         raise SceneError(f"{label}: TOML syntax error: file is not UTF-8 text ({exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{label}: TOML syntax error: {exc}") from exc
-    return scene_from_dict(data, label=label, base_dir=path.parent, default_name=path.stem)
 
 
 def scene_from_dict(

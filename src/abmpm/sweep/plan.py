@@ -8,12 +8,10 @@ import copy
 import hashlib
 import itertools
 import math
-import os
 import re
 import tomllib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from abmpm.errors import AbmpmError, SceneError
@@ -169,7 +167,7 @@ class SceneSource:
 def scene_source(scene) -> SceneSource:
     """A SceneSource from a SceneSource, a Scene, a plain dict, a ``.toml`` path or a
     built-in name (the file is validated as it is first: its own errors come first)."""
-    from abmpm.scene.loader import builtin_scene_path, load_scene
+    from abmpm.scene.loader import read_scene_document
     from abmpm.scene.model import Scene
 
     if isinstance(scene, SceneSource):
@@ -179,15 +177,10 @@ def scene_source(scene) -> SceneSource:
         return SceneSource(scene.model_dump(mode="json"), label=scene.name, base_dir=base)
     if isinstance(scene, Mapping):
         return SceneSource(copy.deepcopy(dict(scene)), label=str(scene.get("name", "scene")))
-    text = os.fspath(scene)
-    load_scene(text)  # SceneError for a missing file, bad TOML or bad contents
-    path = Path(text).expanduser()
-    label = text
-    if not path.is_file():
-        path, label = builtin_scene_path(text), f"{text} (built-in)"
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
-    return SceneSource(data, label=label, base_dir=str(path.parent.resolve()), default_name=path.stem)
+    data, label, path = read_scene_document(scene)  # SceneError for a missing file or bad TOML
+    source = SceneSource(data, label=label, base_dir=str(path.parent.resolve()), default_name=path.stem)
+    source.build()  # the file is validated as it is first: its own errors come first
+    return source
 
 
 def _kind(value: Any) -> str:
