@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import re
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -41,13 +40,13 @@ from abmpm.io.outdir import (
 )
 from abmpm.io.ply import read_mesh_ply, read_particles_ply
 from abmpm.post.preview import REGION_COLOR, material_densities, particle_colors, speed_vmax, splat_radius
+from abmpm.post.surface import surfaces_of_folder
 from abmpm.scene.model import Scene
 
 __all__ = [
     "COLOR_MODES",
     "DEFAULT_HOST",
     "DEFAULT_PORT",
-    "SURFACES_DIR",
     "Viewer",
     "frame_colors",
     "need_viser",
@@ -58,8 +57,6 @@ __all__ = [
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
 COLOR_MODES = ("material", "speed", "level")
-SURFACES_DIR = "surfaces"
-SURFACE_RE = re.compile(r"^surface_(\d+)(?:_(.+))?\.ply$")  # surface_00012_water.ply
 COLLIDER_COLOR = (150, 150, 165)
 SURFACE_COLOR = (120, 180, 235)
 DOMAIN_COLOR = (170, 170, 170)
@@ -194,15 +191,8 @@ class Viewer:
 
     def _scan_surfaces(self) -> None:
         """Find the surface meshes in ``surfaces/`` (any number per frame)."""
-        folder = None if self.out is None else self.out / SURFACES_DIR
-        if folder is None or not folder.is_dir():
-            return
-        found: dict[int, list[tuple[str, Path]]] = {}
-        for p in sorted(folder.iterdir()):
-            m = SURFACE_RE.match(p.name)
-            if m and p.is_file():
-                found.setdefault(int(m.group(1)), []).append((m.group(2) or "surface", p))
-        self._surfaces = found
+        if self.out is not None:
+            self._surfaces = {n: list(found.items()) for n, found in surfaces_of_folder(self.out).items()}
 
     def load(self, frame: int) -> dict:
         """The particle arrays of output frame ``frame`` (``x``, ``v``, ``material``, ...)."""
