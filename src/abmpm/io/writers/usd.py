@@ -55,18 +55,21 @@ class UsdWriter(Writer):
         # refused before anything is simulated
         if importlib.util.find_spec("pxr") is None:
             raise OutputError("output.usd = true needs usd-core: pip install 'abmpm[usd]'")
-        self.colliders: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def begin(self, run: RunContext) -> None:
         self.run = run
-        mesh = run.collider_mesh
-        self.faces = None if mesh is None else mesh[1]
+        # the colliders' vertices of every output frame (one array while they rest)
+        self.track = None
+        if run.collider_mesh is not None:
+            from abmpm.post.preview import ColliderTrack
+
+            self.track = ColliderTrack(*run.collider_mesh)
 
     def write_frame(self, frame: int, data: FrameData) -> None:
         if data.output_frame:
             self.run.frames.keep(frame, data)
-            if self.faces is not None:
-                self.colliders[frame] = (data.collider_vertices, self.faces)
+            if self.track is not None:
+                self.track.record(frame, data.collider_vertices)
 
     def finish(self, run: RunContext) -> None:
         if run.interrupted:
@@ -76,6 +79,7 @@ class UsdWriter(Writer):
         t0 = time.perf_counter()
         source = run.frames.source(run.last_frame)
         if source:
-            write_usd(run.out / USD_FILE, run.scene, source, self.colliders, surfaces_of_folder(run.out))
+            colliders = {} if self.track is None else {n: (v, self.track.faces) for n, v in self.track.vertices.items()}
+            write_usd(run.out / USD_FILE, run.scene, source, colliders, surfaces_of_folder(run.out))
             run.outputs["usd"] = USD_FILE
         run.render_seconds += time.perf_counter() - t0
