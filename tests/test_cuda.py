@@ -31,7 +31,7 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
 KERNEL_MODULES = ["abmpm.sim.transfer", "abmpm.sim.colliders", "abmpm.sim.reconstruct", "abmpm.sim.refine",
-                  "abmpm.sim.solver", "abmpm.sim.parallel"]
+                  "abmpm.sim.solver"]
 # Turing (T4, RTX 20xx), Ampere (RTX 30xx, A10), Hopper (H100): every compile-time
 # variant of the transfers (P2G[cpic, sparse, overlap], G2P[cpic, sparse]) is a
 # kernel of its module, so compiling the module compiles them all

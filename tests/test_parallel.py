@@ -60,9 +60,9 @@ def test_two_threads_are_deterministic_and_match_one(monkeypatch, mode):
 
 
 def test_parallel_p2g_loses_no_mass(monkeypatch):
-    """Two threads scatter at once: a race on a node would lose its add. The grid's
-    mass after P2G (private accumulators added up) is the particles' (float32 sums
-    of ~32k terms: 1e-5 relative)."""
+    """Two threads scatter at once: a race on a node would lose its add. The mass on
+    the grid after P2G, with the second thread's private accumulators (which the
+    grid update adds), is the particles' (float32 sums of ~32k terms: 1e-5 relative)."""
     from abmpm.sim.state import ParticleState
 
     monkeypatch.setenv("ABMPM_THREADS", "2")
@@ -71,6 +71,46 @@ def test_parallel_p2g_loses_no_mass(monkeypatch):
     state = ParticleState.from_numpy(sim._state.numpy(), "cpu")
     solver.begin_segment(state, 0.0, 1e-4)  # buffers and dt of the substep's launches
     solver._p2g(state, g)
-    grid_mass = g.m.numpy().astype(np.float64).sum()
+    private = solver.launcher.private_grids(g.level, g.mv, g.m)
+    assert private.extra == 1
+    own = g.m.numpy().astype(np.float64).sum()
+    other = private.m.numpy().astype(np.float64).sum()
+    assert own > 0.2 * other and other > 0.2 * own  # both threads really scattered
     mass = state.numpy()["mass"].astype(np.float64).sum()
-    assert abs(grid_mass - mass) < 1e-5 * mass
+    assert abs(own + other - mass) < 1e-5 * mass
+    solver._grid_update(g)  # adds the threads' sums and clears them for the next step
+    assert not private.m.numpy().any() and not g.m.numpy().any()
+
+
+def test_adaptive_levels_run_over_their_own_ranges(monkeypatch):
+    """After a split the particles are sorted by (level, cell) and each level's
+    transfers run over its own range. A state whose levels are interleaved runs every
+    transfer over all particles instead: both must give the same substep (float32
+    summation order aside), so no particle is left out of a range."""
+    from abmpm.sim.state import ParticleState
+
+    _, sim = run_steps(monkeypatch, 2, "adaptive", steps=2)
+    solver, n = sim.solver, sim.particle_count
+    level = sim._state.level.numpy()[:n]
+    (first0, count0), = solver._ranges[0]
+    (first1, count1), = solver._ranges[1]
+    assert (first0, first1, count0 + count1) == (0, count0, n) and min(count0, count1) > 2 * MIN_RANGE
+    assert not level[:count0].any() and level[count0:].all()
+
+    snap = sim._state.numpy()
+    order = np.random.default_rng(1).permutation(n)
+    results = []
+    for arrays in (snap, {k: v[order] for k, v in snap.items()}):
+        state = ParticleState.from_numpy(arrays, "cpu")
+        solver.reset_step_count(1)  # no refinement at this host point: the order stays
+        solver.begin_segment(state, sim.time, 1e-4)
+        solver.run_segment(state)
+        assert len(solver._ranges[None]) == (2 if arrays is snap else 1)
+        out = state.numpy()
+        by_id = np.argsort(out["id"])
+        results.append({k: out[k][by_id] for k in ("x", "v")})
+    sorted_run, shuffled_run = results
+    # one substep: P2G sums in another order differ by float32 round-off (~1e-7 relative)
+    scale = np.abs(sorted_run["v"]).max()
+    assert np.abs(sorted_run["v"] - shuffled_run["v"]).max() < 1e-5 * scale
+    assert np.abs(sorted_run["x"] - shuffled_run["x"]).max() < 1e-6

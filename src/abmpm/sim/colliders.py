@@ -252,11 +252,12 @@ def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new:
 
 
 @wp.kernel
-def color_particles(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), colliders: ColliderArrays,
-                     g: GridSpec, f: ColorField,
+def color_particles(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), id: wp.array(dtype=wp.int32),
+                     min_id: int, colliders: ColliderArrays, g: GridSpec, f: ColorField,
                      surface_point: wp.array(dtype=wp.vec3), surface_side: wp.array(dtype=wp.vec3), surface_body: wp.array(dtype=wp.int32)):
+    # the particles of this grid's level with an id from min_id on (after a split: its children)
     p = wp.tid() + first
-    if level[p] != g.level:
+    if level[p] != g.level or id[p] < min_id:
         return
     c = Color()
     c.body = -1

@@ -5,15 +5,16 @@ generated code keeps the thread index local, so the same kernel launched on
 disjoint ranges from several Python threads runs on several cores. Warp's CPU
 atomics are plain adds, though: two ranges must never add to the same grid node.
 P2G therefore scatters each range into its own copy of the grid's accumulators
-(``Launcher.private_grids``), which a per-node pass adds up afterwards in a fixed
-order, so that results depend on the thread count but not on timing (a resumed
-run is bit-identical to an uninterrupted one with the same threads).
+(``Launcher.private_grids``), which the grid update adds up node by node in a fixed
+order (and clears for the next step), so that results depend on the thread count
+but not on timing (a resumed run is bit-identical to an uninterrupted one with the
+same threads).
 
 Why private grids and not slabs of cell-sorted particles (two slabs processed at
 once never sharing a node): they need no ordering of the particles, work on the
-block-sparse fine grid unchanged, and on 2-8 cores the extra pass over the nodes
-is small next to the scatter itself (one read-add-clear per node per extra thread
-against 27 scattered adds per particle).
+block-sparse fine grid unchanged, and on 2-8 cores the extra work in the grid
+update is small next to the scatter itself (one read-add-clear per node per extra
+thread against 27 scattered adds per particle).
 
 A kernel that runs through the launcher takes the first index of its range as its
 first argument (``p = wp.tid() + first``). On CUDA everything is one launch.
@@ -24,6 +25,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import warp as wp
 
@@ -50,15 +52,16 @@ def default_threads() -> int:
         return os.cpu_count() or 1
 
 
-@wp.kernel
-def gather_private_grid(first: int, mv: wp.array(dtype=wp.vec3), m: wp.array(dtype=float),
-                        private_mv: wp.array(dtype=wp.vec3), private_m: wp.array(dtype=float)):
-    # add one thread's P2G accumulators to the grid's and clear them for the next step
-    n = wp.tid() + first
-    mv[n] = mv[n] + private_mv[n]
-    m[n] = m[n] + private_m[n]
-    private_mv[n] = wp.vec3(0.0)
-    private_m[n] = 0.0
+@dataclass
+class PrivateGrids:
+    """The P2G accumulators of a grid's extra threads, stacked: thread t >= 1 adds
+    to ``mv[(t - 1) * stride + n]`` (its view ``parts[t]``), thread 0 to the grid's own."""
+
+    mv: wp.array
+    m: wp.array
+    stride: int  # node storage of the grid
+    extra: int  # threads beyond the first
+    parts: list[tuple[wp.array, wp.array]]
 
 
 class Launcher:
@@ -68,23 +71,23 @@ class Launcher:
         self.device = wp.get_device(device)
         self.threads = 1 if self.device.is_cuda else max(1, int(threads or default_threads()))
         self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="abmpm") if self.threads > 1 else None
-        self._private: dict[int, list[tuple[wp.array, wp.array]]] = {}
+        self._private: dict[int, PrivateGrids] = {}
         self._warm: set = set()  # (kernel, argument types) launched once already
         self.serial = False  # run the parts one after the other on this thread (graph capture)
 
-    def ranges(self, n: int) -> list[tuple[int, int]]:
-        """(first, count) of each thread's part of ``range(n)``, in order."""
+    def ranges(self, n: int, start: int = 0) -> list[tuple[int, int]]:
+        """(first, count) of each thread's part of ``range(start, start + n)``, in order."""
         t = min(self.threads, max(1, n // MIN_RANGE))
-        bounds = [n * i // t for i in range(t + 1)]
+        bounds = [start + n * i // t for i in range(t + 1)]
         return [(bounds[i], bounds[i + 1] - bounds[i]) for i in range(t)]
 
-    def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence) -> int:
-        """Run ``kernel`` over ``range(n)``: ``inputs(part, first, count)`` gives each
-        part's arguments after ``first`` (or one list shared by all parts). Returns
-        the number of parts."""
+    def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence, start: int = 0) -> int:
+        """Run ``kernel`` over ``range(start, start + n)``: ``inputs(part, first, count)``
+        gives each part's arguments after ``first`` (or one list shared by all parts).
+        Returns the number of parts."""
         if n <= 0:
             return 0
-        parts = self.ranges(n)
+        parts = self.ranges(n, start)
         make = inputs if callable(inputs) else (lambda part, first, count: inputs)
 
         def run(part: int) -> None:
@@ -105,24 +108,24 @@ class Launcher:
             f.result()
         return len(parts)
 
-    def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> list[tuple[wp.array, wp.array]]:
+    def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> PrivateGrids:
         """Per-part P2G accumulators of a grid: part 0 writes the grid's own, the
-        others their zeroed copies (same size as the grid's storage). They are made
-        on the first call and when the grid's storage grows: the solver asks at its
-        host points, so that its substeps find them ready."""
-        arrays = self._private.get(grid_key, [])
-        if arrays and arrays[0][1].shape[0] != m.shape[0]:
-            arrays = []
-        while len(arrays) < self.threads - 1:
-            arrays.append((wp.zeros_like(mv), wp.zeros_like(m)))
-        self._private[grid_key] = arrays
-        return [(mv, m)] + arrays
+        others their zeroed slices of one stacked pair (each slice the size of the
+        grid's storage). Made on the first call and when the grid's storage grows:
+        the solver asks at its host points, so that its substeps find them ready.
+        The grid update adds the slices to the grid and clears them."""
+        extra, stride = self.threads - 1, m.shape[0]
+        grids = self._private.get(grid_key)
+        if grids is None or grids.stride != stride:
+            size = max(1, extra * stride)
+            stacked_mv = wp.zeros(size, dtype=wp.vec3, device=self.device)
+            stacked_m = wp.zeros(size, dtype=float, device=self.device)
+            parts = [(mv, m)] + [(stacked_mv[t * stride:(t + 1) * stride], stacked_m[t * stride:(t + 1) * stride])
+                                 for t in range(extra)]
+            grids = self._private[grid_key] = PrivateGrids(stacked_mv, stacked_m, stride, extra, parts)
+        grids.parts[0] = (mv, m)
+        return grids
 
     def private_arrays(self) -> list[wp.array]:
         """Every private accumulator allocated so far."""
-        return [a for arrays in self._private.values() for pair in arrays for a in pair]
-
-    def gather(self, grid_key: int, mv: wp.array, m: wp.array, used_parts: int, node_count: int) -> None:
-        """Add the private accumulators of parts 1.. to the grid's (fixed order)."""
-        for private_mv, private_m in self._private.get(grid_key, [])[: used_parts - 1]:
-            self.launch(gather_private_grid, node_count, [mv, m, private_mv, private_m])
+        return [a for grids in self._private.values() for a in (grids.mv, grids.m)]

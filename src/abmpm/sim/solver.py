@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from . import parallel, transfer
+from . import transfer
 from .boundary import FACES
 from .colliders import (
     ColliderSet,
@@ -53,7 +53,7 @@ from .materials import MaterialParams
 from .parallel import Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
-from .state import DYNAMIC, FIELDS, ParticleState
+from .state import DTYPES, DYNAMIC, FIELDS, ParticleArrays, ParticleState
 
 wp.set_module_options({"enable_backward": False})
 
@@ -127,6 +127,14 @@ class MPMSolver:
         self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
         self._signal_slots = [[self.signal[2 * (k * threads + t): 2 * (k * threads + t) + 2] for t in range(threads)]
                               for k in range(SEGMENT_MAX)]
+        # Where each level's particles lie: level (None: every level) -> ranges
+        # (first, count). After a sort by (level, cell) each level of adaptive mode
+        # is one contiguous range and its transfers run over it alone: equal work per
+        # CPU thread, no pass over particles that would return at once. Checked at
+        # every host point; unsorted particles get one range over all.
+        self._partition = wp.zeros(2, dtype=wp.int32, device=device)
+        self._ranges: dict[int | None, list[tuple[int, int]]] = {}
+        self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
         self._segment = 0  # substeps in the current segment
         self._substep = 0  # of which taken
         self._segment_start = 0  # step count at its start
@@ -239,7 +247,7 @@ class MPMSolver:
             coarse, fine = self.grids
             self._p2g(state, coarse, only_level=0, overlap=1)
             self._p2g(state, coarse, only_level=1, overlap=2)
-            self._p2g(state, fine)
+            self._p2g(state, fine)  # every level: level-0 particles reach the fine blocks too
         for g in self.grids:  # 5. grid update (Eqs. 3-4, 22)
             self._grid_update(g)
         for g in self.grids:  # 6. G2P (Eqs. 11-14, 23-25), CFL signal into this substep's slot
@@ -301,6 +309,21 @@ class MPMSolver:
         for g in self.grids:
             self.launcher.private_grids(g.level, g.mv, g.m)
         state.arrays()
+        self._find_level_ranges(state)
+
+    def _find_level_ranges(self, state: ParticleState) -> None:
+        # adaptive mode: one small read per host point says whether the particles are
+        # partitioned by level (a sort by (level, cell) leaves them so) and where
+        n = state.count
+        full = [(0, n)]
+        self._ranges = {None: full, **{g.level: full for g in self.grids}}
+        if self.refiner is None or n == 0:
+            return
+        self._partition.zero_()
+        wp.launch(_level_partition, n, inputs=[state.level, self._partition], device=self.device)
+        level0, unordered = (int(v) for v in self._partition.numpy())
+        if unordered == 0:
+            self._ranges = {0: [(0, level0)], 1: [(level0, n - level0)], None: [(0, level0), (level0, n - level0)]}
 
     def _graph_buffer_key(self, state: ParticleState) -> tuple:
         # what a captured substep has baked in: launch sizes and every buffer's address
@@ -310,13 +333,13 @@ class MPMSolver:
         for g in self.grids:
             arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
         arrays += self.launcher.private_arrays()
-        return (state.count, tuple(g.node_count for g in self.grids), int(self.collider_arrays.mesh),
+        return (state.count, tuple(map(tuple, self._ranges.values())), tuple(g.node_count for g in self.grids),
+                int(self.collider_arrays.mesh),
                 tuple((a.ptr, a.shape) for a in arrays))
 
     def _capture(self, state: ParticleState, n: int):
         first, steps = self._substep, self._steps
-        for module in (transfer, parallel):  # loaded before, not during, the capture
-            wp.load_module(module, device=self.device)
+        wp.load_module(transfer, device=self.device)  # loaded before, not during, the capture
         self.launcher.serial = True  # one thread records the launches in order
         try:
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
@@ -333,26 +356,29 @@ class MPMSolver:
         # with a second grid, the coarse P2G keeps each particle's stress for it
         store = len(self.grids) > 1 and not g.sparse
         # each CPU thread scatters into its own accumulators, added up afterwards
-        grids = self.launcher.private_grids(g.level, g.mv, g.m)
+        grids = self.launcher.private_grids(g.level, g.mv, g.m).parts
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
-        parts = self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], s.count,
-                                     lambda part, first, count: [*common, *grids[part]])
-        self.launcher.gather(g.level, g.mv, g.m, parts, g.node_count)
+        for first, count in self._ranges[only_level if only_level >= 0 else None]:
+            self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], count,
+                                 lambda part, first, count: [*common, *grids[part]], start=first)
 
     def _occupied(self, g: Grid):
         # the coarse grid's occupancy in adaptive mode, else a placeholder
         return self._occ if self.refiner is not None and not g.sparse else self._no_occ
 
     def _grid_update(self, g: Grid) -> None:
+        private = self.launcher.private_grids(g.level, g.mv, g.m)
         self.launcher.launch(transfer.grid_update, g.node_count,
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
-                              int(self.refiner is not None and not g.sparse)])
+                              int(self.refiner is not None and not g.sparse),
+                              private.mv, private.m, private.extra, private.stride])
 
     def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
         common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
-        self.launcher.launch(transfer.G2P[self.cpic, g.sparse], s.count,
-                             lambda part, first, count: [*common, signal_slots[part]])
+        for first, count in self._ranges[g.level]:
+            self.launcher.launch(transfer.G2P[self.cpic, g.sparse], count,
+                                 lambda part, first, count: [*common, signal_slots[part]], start=first)
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
@@ -377,13 +403,14 @@ class MPMSolver:
         for g in self.grids:
             c.color(g)
 
-    def color_particles(self, state: ParticleState) -> None:
-        """CPIC color of every particle from its own grid (later steps update it in G2P)."""
+    def color_particles(self, state: ParticleState, min_id: int = -1) -> None:
+        """CPIC color of every particle (of those with an id from ``min_id`` on) from
+        its own grid; later steps update it in G2P."""
         if self.colliders is None or not self.cpic:
             return
         for g in self.grids:
             self.launcher.launch(color_particles, state.count,
-                                 [state.x, state.level, self.collider_arrays, g.spec, g.color,
+                                 [state.x, state.level, state.id, min_id, self.collider_arrays, g.spec, g.color,
                                   state.surface_point, state.surface_side, state.surface_body])
 
     # ------------------------------------------------------------------ refinement
@@ -398,10 +425,12 @@ class MPMSolver:
     def refine(self, state: ParticleState) -> None:
         """Split particles that entered the region (Eq. 15); activate the fine blocks
         the level-1 particles reach."""
-        n_split = self.refiner.split(state, self._next_id, self.collider_arrays, self.materials)
+        first_child = self._next_id
+        n_split = self.refiner.split(state, first_child, self.collider_arrays, self.materials)
         if n_split:
             self._next_id += n_split * self.refiner.b**3
-            self.color_particles(state)
+            self.color_particles(state, min_id=first_child)  # only the children moved
+            self.sort_by_cell(state)  # the children joined at the end: each level contiguous again
         first = self.refiner.activate(state)
         self._after_activation(first)
 
@@ -414,32 +443,63 @@ class MPMSolver:
     # ------------------------------------------------------------------ sorting
 
     def sort_by_cell(self, state: ParticleState) -> None:
-        """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the device)."""
+        """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
+        device); in adaptive mode by level first, so that each level is one range."""
         n = state.count
         if n == 0:
             return
         keys = wp.empty(2 * n, dtype=wp.int32, device=self.device)
         perm = wp.empty(2 * n, dtype=wp.int32, device=self.device)
-        self.launcher.launch(_cell_keys, n, [state.x, self.grid.spec, keys, perm])
+        by_level = int(self.refiner is not None)
+        self.launcher.launch(_cell_keys, n, [state.x, state.level, by_level, self.grid.spec, keys, perm])
         wp.utils.radix_sort_pairs(keys, perm, n)
+        if self._sorted is None or self._sorted.capacity < n:
+            self._sorted = ParticleState(**{name: wp.empty(state.capacity, dtype=DTYPES[name], device=self.device)
+                                            for name in FIELDS})
+        self.launcher.launch(_permute, n, [state.arrays(), perm, self._sorted.arrays()])
         for name in FIELDS:
-            src = getattr(state, name)
-            tmp = wp.empty(n, dtype=src.dtype, device=self.device)
-            self.launcher.launch(_gather, n, [src, perm, tmp])
-            wp.copy(src, tmp, count=n)
+            wp.copy(getattr(state, name), getattr(self._sorted, name), count=n)
 
 
 @wp.kernel
-def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), g: transfer.GridSpec, keys: wp.array(dtype=wp.int32),
-               perm: wp.array(dtype=wp.int32)):
+def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
+               g: transfer.GridSpec, keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32)):
     p = wp.tid() + first
     b = transfer.stencil_base(g, x[p])
     keys[p] = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
+    if by_level != 0:
+        keys[p] = keys[p] + level[p] * g.dims[0] * g.dims[1] * g.dims[2]
     perm[p] = p
 
 
 @wp.kernel
-def _gather(first: int, src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.array(dtype=Any)):
-    p = wp.tid() + first
-    dst[p] = src[perm[p]]
+def _level_partition(level: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.int32)):
+    # out[0]: level-0 particles; out[1]: places where a level-0 particle follows a
+    # level-1 one (0 when the particles are partitioned by level). One thread on the CPU.
+    p = wp.tid()
+    if level[p] == 0:
+        wp.atomic_add(out, 0, 1)
+        if p > 0:
+            if level[p - 1] != 0:
+                wp.atomic_add(out, 1, 1)
 
+
+@wp.kernel
+def _permute(first: int, src: ParticleArrays, perm: wp.array(dtype=wp.int32), dst: ParticleArrays):
+    # dst[p] = src[perm[p]], every field in one pass
+    p = wp.tid() + first
+    q = perm[p]
+    dst.x[p] = src.x[q]
+    dst.v[p] = src.v[q]
+    dst.C[p] = src.C[q]
+    dst.F[p] = src.F[q]
+    dst.history[p] = src.history[q]
+    dst.surface_point[p] = src.surface_point[q]
+    dst.surface_side[p] = src.surface_side[q]
+    dst.surface_body[p] = src.surface_body[q]
+    dst.mass[p] = src.mass[q]
+    dst.volume[p] = src.volume[q]
+    dst.material[p] = src.material[q]
+    dst.level[p] = src.level[q]
+    dst.id[p] = src.id[q]
+    dst.family[p] = src.family[q]

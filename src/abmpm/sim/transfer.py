@@ -214,14 +214,25 @@ def grid_update(
     grid_v: wp.array(dtype=wp.vec3),
     grid_occupied: wp.array(dtype=wp.int32),
     clear_occupied: int,
+    private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
+    private_m: wp.array(dtype=float),
+    extra: int,
+    stride: int,
 ):
     # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
     # clears the P2G accumulators for the next step so the grid is swept once.
     n = wp.tid() + first
     m = grid_m[n]
+    mv_sum = grid_mv[n]
+    for t in range(extra):  # the threads' sums, in a fixed order
+        q = t * stride + n
+        mv_sum = mv_sum + private_mv[q]
+        m = m + private_m[q]
+        private_mv[q] = wp.vec3(0.0)
+        private_m[q] = 0.0
     vi = wp.vec3(0.0)
     if m > 0.0:
-        vi = grid_mv[n] / m + dt_now[0] * g.gravity
+        vi = mv_sum / m + dt_now[0] * g.gravity
         xi = node_position(g, node_coords(g, n))
         if colliders.enabled != 0:
             vi = node_contact(colliders, color, g, vi, xi, n)
