@@ -114,3 +114,30 @@ def test_adaptive_levels_run_over_their_own_ranges(monkeypatch):
     scale = np.abs(sorted_run["v"]).max()
     assert np.abs(sorted_run["v"] - shuffled_run["v"]).max() < 1e-5 * scale
     assert np.abs(sorted_run["x"] - shuffled_run["x"]).max() < 1e-6
+
+
+def test_profile_times_every_transfer_by_phase(monkeypatch):
+    """abmpm bench --profile: every transfer of an adaptive substep is timed under its
+    own name, refinement and frame work as phases of their own."""
+    import time
+
+    from abmpm.bench import profile_rows
+    from abmpm.sim.parallel import KernelProfile
+
+    monkeypatch.setenv("ABMPM_THREADS", "2")
+    sim = abmpm.Simulation(block_scene("adaptive"), device="cpu")
+    sim.step()
+    prof = sim.solver.launcher.profile = KernelProfile()
+    t0 = time.perf_counter()
+    sim.advance(frames=1)
+    wall = time.perf_counter() - t0
+    steps = prof.launches[("substep", "grid update coarse")]
+    assert steps >= 4
+    for name in ("P2G coarse (level 0)", "P2G coarse (level 1, overlap)", "G2P coarse", "G2P fine", "grid update fine"):
+        assert prof.launches[("substep", name)] == steps, name
+    assert prof.launches[("substep", "P2G fine")] == 2 * steps  # one launch per level's range
+    assert prof.launches[("refinement", "(all)")] >= steps // 4 and prof.launches[("frame end", "(all)")] == 1
+    rows = profile_rows(prof, steps, wall)
+    assert abs(sum(r["share"] for r in rows if r["section"] == "substep" or r["kernel"] in ("(all)", "(other host work)"))
+               - 1.0) < 1e-3
+    assert all(r["ms_per_step"] > 0 for r in rows if r["kernel"] != "(other host work)")

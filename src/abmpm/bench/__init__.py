@@ -92,8 +92,31 @@ def jelly_scene(dx: float = 1 / 30, factor: int = 3):
 ADAPTIVE_CASES = {"narrow slit": slit_scene, "jelly on crossed blades": jelly_scene}
 
 
-def time_modes(scene, frames: int, device: str) -> dict:
-    """Wall-clock steps/s and mean particle count of the same scene in each mode."""
+def profile_rows(profile, steps: int, wall: float) -> list[dict]:
+    """A KernelProfile as rows (section, kernel, ms per step, launches per step, share
+    of the wall time), largest first; "(other host work)" is what no section timed."""
+    rows = [{"section": sec, "kernel": name, "ms_per_step": 1e3 * t / steps,
+             "launches_per_step": profile.launches[(sec, name)] / steps, "share": t / wall}
+            for (sec, name), t in profile.seconds.items()]
+    timed = sum(r["ms_per_step"] for r in rows if r["section"] == "substep" or r["kernel"] == "(all)")
+    rows.append({"section": "", "kernel": "(other host work)", "ms_per_step": 1e3 * wall / steps - timed,
+                 "launches_per_step": 0.0, "share": 1.0 - timed * steps / (1e3 * wall)})
+    rows.sort(key=lambda r: -r["ms_per_step"])
+    return [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in rows]
+
+
+def print_profile(title: str, rows: list[dict]) -> None:
+    print(f"  {title}: ms per step by phase and kernel")
+    for r in rows:
+        if r["share"] >= 0.005:
+            print(f"    {r['section']:<12} {r['kernel']:<34} {r['ms_per_step']:8.3f} ms  "
+                  f"{r['launches_per_step']:5.2f} launches  {100 * r['share']:5.1f}%")
+
+
+def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
+    """Wall-clock steps/s, mean particle count and cost per particle-step of the same
+    scene in each mode; with ``profile`` also a breakdown by phase and kernel."""
+    from ..sim.parallel import KernelProfile
     from ..simulation import Simulation
 
     out = {}
@@ -103,18 +126,27 @@ def time_modes(scene, frames: int, device: str) -> dict:
         sim = Simulation(sc, device=device, mode=mode.split("_")[0])
         sim.step()  # compile and warm up outside the timing
         counts = []
+        if profile and mode != "adaptive_plain_split":
+            sim.solver.launcher.profile = KernelProfile()
         t0 = time.perf_counter()
         steps0, recon0 = sim.steps, sim.solver.reconstruction_seconds
         sim.advance(frames=frames, callback=lambda s: counts.append(s.particle_count))
         wall = time.perf_counter() - t0
-        out[mode] = {"steps_per_s": round((sim.steps - steps0) / wall, 2), "mean_particles": int(np.mean(counts)),
-                     "steps": sim.steps - steps0, "wall_s": round(wall, 2),
+        steps = sim.steps - steps0
+        out[mode] = {"steps_per_s": round(steps / wall, 2), "mean_particles": int(np.mean(counts)),
+                     "steps": steps, "wall_s": round(wall, 2),
+                     "ns_per_particle_step": round(1e9 * wall / steps / np.mean(counts), 1),
                      "reconstruction_s": round(sim.solver.reconstruction_seconds - recon0, 3)}
+        if sim.solver.launcher.profile is not None:
+            out[mode]["profile"] = profile_rows(sim.solver.launcher.profile, steps, wall)
     a, f = out["adaptive"], out["finest"]
     out["speedup_adaptive_over_finest"] = round(a["steps_per_s"] / f["steps_per_s"], 3)
     out["particle_ratio_finest_over_adaptive"] = round(f["mean_particles"] / a["mean_particles"], 3)
     out["speedup_per_particle_ratio"] = round(out["speedup_adaptive_over_finest"]
                                               / out["particle_ratio_finest_over_adaptive"], 3)
+    # the same figure the other way up: what a particle-step costs in adaptive mode
+    # against finest mode (issue goal <= 1.25, i.e. speedup per particle ratio >= 0.8)
+    out["cost_per_particle_step_adaptive_over_finest"] = round(a["ns_per_particle_step"] / f["ns_per_particle_step"], 3)
     # what surface reconstruction adds to an adaptive step: its share of the run's
     # time (the plain-split run takes other time steps, so its steps/s is only a hint)
     out["reconstruction_cost"] = round(a["reconstruction_s"] / (a["wall_s"] - a["reconstruction_s"]), 3)
@@ -228,6 +260,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
+    ap.add_argument("--profile", action="store_true",
+                    help="adaptive suite: time every kernel and phase of the step (ms per step)")
     args = ap.parse_args(argv or [])
 
     from ..simulation import Simulation, choose_device
@@ -276,13 +310,18 @@ def run_bench(argv: list[str] | None = None) -> dict:
     adaptive = {}
     if args.suite in ("adaptive", "all"):
         for name, make in ADAPTIVE_CASES.items():
-            adaptive[name] = r = time_modes(make(), args.frames, device)
+            adaptive[name] = r = time_modes(make(), args.frames, device, profile=args.profile)
             print(f"{name}: " + "  ".join(f"{m} {r[m]['steps_per_s']} steps/s ({r[m]['mean_particles']} particles)"
                                           for m in ("original", "adaptive", "finest"))
                   + f"  speedup {r['speedup_adaptive_over_finest']} vs particle ratio "
                   f"{r['particle_ratio_finest_over_adaptive']} -> {r['speedup_per_particle_ratio']}; "
                   f"adaptive without reconstruction {r['adaptive_plain_split']['steps_per_s']} steps/s "
-                  f"(reconstruction costs {100 * r['reconstruction_cost']:.1f}%)", flush=True)
+                  f"(reconstruction costs {100 * r['reconstruction_cost']:.1f}%); a particle-step costs "
+                  f"{r['adaptive']['ns_per_particle_step']} ns adaptive, {r['finest']['ns_per_particle_step']} ns "
+                  f"finest -> {r['cost_per_particle_step_adaptive_over_finest']}x", flush=True)
+            for mode in ("adaptive", "finest"):
+                if "profile" in r[mode]:
+                    print_profile(f"{name}, {mode}", r[mode]["profile"])
     colliders = {}
     if args.suite in ("colliders", "all"):
         colliders = time_collider_overhead(device, args.seconds)

@@ -141,6 +141,11 @@ class Grid:
         return int(self.spec.level)
 
     @property
+    def name(self) -> str:
+        """"coarse" (level 0, spacing dx) or "fine" (level 1, dx/b), for messages."""
+        return "coarse" if self.level == 0 else "fine"
+
+    @property
     def sparse(self) -> bool:
         return bool(self.spec.sparse)
 

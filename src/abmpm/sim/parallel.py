@@ -23,9 +23,12 @@ first argument (``p = wp.tid() + first``). On CUDA everything is one launch.
 from __future__ import annotations
 
 import os
+import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 import warp as wp
 
@@ -64,6 +67,18 @@ class PrivateGrids:
     parts: list[tuple[wp.array, wp.array]]
 
 
+@dataclass
+class KernelProfile:
+    """Wall seconds and launches per (section, kernel) of the launches made through a
+    :class:`Launcher` while it is attached (``abmpm bench --profile``). A section
+    names a phase of the step (``Launcher.section``); its own wall time, host work
+    included, is kept under the kernel name ``"(all)"``."""
+
+    seconds: Counter = field(default_factory=Counter)
+    launches: Counter = field(default_factory=Counter)
+    section: str = "substep"
+
+
 class Launcher:
     """Launches range kernels over ``threads`` CPU threads (one launch on CUDA)."""
 
@@ -74,6 +89,28 @@ class Launcher:
         self._private: dict[int, PrivateGrids] = {}
         self._warm: set = set()  # (kernel, argument types) launched once already
         self.serial = False  # run the parts one after the other on this thread (graph capture)
+        self.profile: KernelProfile | None = None  # attach one to time every launch
+
+    @contextmanager
+    def section(self, name: str):
+        """Launches inside are profiled under ``name`` (nothing happens unless profiling)."""
+        prof = self.profile
+        if prof is None:
+            yield
+            return
+        outer, prof.section = prof.section, name
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._synchronize()
+            prof.seconds[(name, "(all)")] += time.perf_counter() - t0
+            prof.launches[(name, "(all)")] += 1
+            prof.section = outer
+
+    def _synchronize(self) -> None:
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
 
     def ranges(self, n: int, start: int = 0) -> list[tuple[int, int]]:
         """(first, count) of each thread's part of ``range(start, start + n)``, in order."""
@@ -81,12 +118,24 @@ class Launcher:
         bounds = [start + n * i // t for i in range(t + 1)]
         return [(bounds[i], bounds[i + 1] - bounds[i]) for i in range(t)]
 
-    def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence, start: int = 0) -> int:
+    def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence, start: int = 0,
+               label: str | None = None) -> int:
         """Run ``kernel`` over ``range(start, start + n)``: ``inputs(part, first, count)``
         gives each part's arguments after ``first`` (or one list shared by all parts).
-        Returns the number of parts."""
+        Returns the number of parts. ``label`` names the launch in a profile."""
         if n <= 0:
             return 0
+        if self.profile is not None:
+            t0 = time.perf_counter()
+            parts = self._launch(kernel, n, inputs, start)
+            self._synchronize()
+            key = (self.profile.section, label or kernel.key)
+            self.profile.seconds[key] += time.perf_counter() - t0
+            self.profile.launches[key] += 1
+            return parts
+        return self._launch(kernel, n, inputs, start)
+
+    def _launch(self, kernel, n: int, inputs, start: int) -> int:
         parts = self.ranges(n, start)
         make = inputs if callable(inputs) else (lambda part, first, count: inputs)
 

@@ -220,9 +220,11 @@ class MPMSolver:
         from the host happens here, never in a substep."""
         if not 1 <= substeps <= self.segment_length:
             raise ValueError(f"a segment has 1 to {self.segment_length} substeps now, not {substeps}")
-        self.move_colliders(time)  # 1. colliders to t, color field
+        with self.launcher.section("colliders"):
+            self.move_colliders(time)  # 1. colliders to t, color field
         if self.refiner is not None and self._steps % REFINE_EVERY == 0:
-            self.refine(state)  # 2. split (Eq. 15), fine blocks
+            with self.launcher.section("refinement"):
+                self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
         self._dt.fill_(dt)
         wp.copy(self.signal, self._signal_at_rest)
@@ -359,9 +361,10 @@ class MPMSolver:
         grids = self.launcher.private_grids(g.level, g.mv, g.m).parts
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
+        label = f"P2G {g.name}" + {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}[only_level]
         for first, count in self._ranges[only_level if only_level >= 0 else None]:
             self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], count,
-                                 lambda part, first, count: [*common, *grids[part]], start=first)
+                                 lambda part, first, count: [*common, *grids[part]], start=first, label=label)
 
     def _occupied(self, g: Grid):
         # the coarse grid's occupancy in adaptive mode, else a placeholder
@@ -372,13 +375,14 @@ class MPMSolver:
         self.launcher.launch(transfer.grid_update, g.node_count,
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
                               int(self.refiner is not None and not g.sparse),
-                              private.mv, private.m, private.extra, private.stride])
+                              private.mv, private.m, private.extra, private.stride], label=f"grid update {g.name}")
 
     def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
         common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
         for first, count in self._ranges[g.level]:
             self.launcher.launch(transfer.G2P[self.cpic, g.sparse], count,
-                                 lambda part, first, count: [*common, signal_slots[part]], start=first)
+                                 lambda part, first, count: [*common, signal_slots[part]], start=first,
+                                 label=f"G2P {g.name}")
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
