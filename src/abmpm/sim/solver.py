@@ -372,7 +372,7 @@ class MPMSolver:
 
     def _grid_update(self, g: Grid) -> None:
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        self.launcher.launch(transfer.grid_update, g.node_count,
+        self.launcher.launch(transfer.GRID_UPDATE[private.extra > 0], g.node_count,
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
                               int(self.refiner is not None and not g.sparse),
                               private.mv, private.m, private.extra, private.stride], label=f"grid update {g.name}")

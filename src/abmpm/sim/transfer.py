@@ -202,56 +202,63 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
     return False
 
 
-@wp.kernel
-def grid_update(
-    first: int,  # this launch's first node (sim/parallel.py)
-    g: GridSpec,
-    colliders: ColliderArrays,
-    color: ColorField,
-    dt_now: wp.array(dtype=float),  # [dt]
-    grid_mv: wp.array(dtype=wp.vec3),
-    grid_m: wp.array(dtype=float),
-    grid_v: wp.array(dtype=wp.vec3),
-    grid_occupied: wp.array(dtype=wp.int32),
-    clear_occupied: int,
-    private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
-    private_m: wp.array(dtype=float),
-    extra: int,
-    stride: int,
-):
-    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
-    # clears the P2G accumulators for the next step so the grid is swept once.
-    n = wp.tid() + first
-    m = grid_m[n]
-    mv_sum = grid_mv[n]
-    for t in range(extra):  # the threads' sums, in a fixed order
-        q = t * stride + n
-        mv_sum = mv_sum + private_mv[q]
-        m = m + private_m[q]
-        private_mv[q] = wp.vec3(0.0)
-        private_m[q] = 0.0
-    vi = wp.vec3(0.0)
-    if m > 0.0:
-        vi = mv_sum / m + dt_now[0] * g.gravity
-        xi = node_position(g, node_coords(g, n))
-        if colliders.enabled != 0:
-            vi = node_contact(colliders, color, g, vi, xi, n)
-        # the domain walls have the last word: a collider never pushes material through them
-        tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
-        for d in range(3):
-            if xi[d] <= g.domain_lo[d] + tol:
-                nrm = wp.vec3(0.0)
-                nrm[d] = 1.0
-                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
-            if xi[d] >= g.domain_hi[d] - tol:
-                nrm = wp.vec3(0.0)
-                nrm[d] = -1.0
-                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
-    grid_v[n] = vi
-    grid_mv[n] = wp.vec3(0.0)
-    grid_m[n] = 0.0
-    if clear_occupied != 0:
-        grid_occupied[n] = 0
+def _make_grid_update(private: bool):
+    @_variant("grid_update", private)
+    def grid_update(
+        first: int,  # this launch's first node (sim/parallel.py)
+        g: GridSpec,
+        colliders: ColliderArrays,
+        color: ColorField,
+        dt_now: wp.array(dtype=float),  # [dt]
+        grid_mv: wp.array(dtype=wp.vec3),
+        grid_m: wp.array(dtype=float),
+        grid_v: wp.array(dtype=wp.vec3),
+        grid_occupied: wp.array(dtype=wp.int32),
+        clear_occupied: int,
+        private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
+        private_m: wp.array(dtype=float),
+        extra: int,
+        stride: int,
+    ):
+        # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
+        # clears the P2G accumulators for the next step so the grid is swept once.
+        n = wp.tid() + first
+        m = grid_m[n]
+        mv_sum = wp.vec3(0.0)
+        if wp.static(private):  # the other CPU threads' sums, in a fixed order
+            mv_sum = grid_mv[n]
+            for t in range(extra):
+                q = t * stride + n
+                mv_sum = mv_sum + private_mv[q]
+                m = m + private_m[q]
+                private_mv[q] = wp.vec3(0.0)
+                private_m[q] = 0.0
+        vi = wp.vec3(0.0)
+        if m > 0.0:
+            if wp.static(not private):
+                mv_sum = grid_mv[n]
+            vi = mv_sum / m + dt_now[0] * g.gravity
+            xi = node_position(g, node_coords(g, n))
+            if colliders.enabled != 0:
+                vi = node_contact(colliders, color, g, vi, xi, n)
+            # the domain walls have the last word: a collider never pushes material through them
+            tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
+            for d in range(3):
+                if xi[d] <= g.domain_lo[d] + tol:
+                    nrm = wp.vec3(0.0)
+                    nrm[d] = 1.0
+                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
+                if xi[d] >= g.domain_hi[d] - tol:
+                    nrm = wp.vec3(0.0)
+                    nrm[d] = -1.0
+                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+        grid_v[n] = vi
+        grid_mv[n] = wp.vec3(0.0)
+        grid_m[n] = 0.0
+        if clear_occupied != 0:
+            grid_occupied[n] = 0
+
+    return grid_update
 
 
 def _make_g2p(cpic: bool, sparse: bool):
@@ -378,3 +385,5 @@ _VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
 # P2G[cpic, sparse, overlap_pass]: the overlap pass is the level-split coarse P2G of adaptive mode
 P2G = {(c, s, o): _make_p2g(c, s, o) for c, s in _VARIANTS for o in ((False, True) if not s else (False,))}
 G2P = {key: _make_g2p(*key) for key in _VARIANTS}
+# GRID_UPDATE[private]: with the sums of other CPU threads' P2G accumulators to add
+GRID_UPDATE = {private: _make_grid_update(private) for private in (False, True)}
