@@ -212,9 +212,20 @@ def test_apply_overrides_sets_list_items():
     (["compare", "tiny_no_such_scene"], "unknown scene"),
     (["compare", "paper_cut", "--modes", "coarse"], "unknown mode"),
     (["paper", "--scenes", "paper_nope"], "unknown paper scene"),
+    (["compare", "paper_cut", "--set", "simulation.dx=0.1,0.2"], "one value here"),
+    (["paper", "--scenes", "paper_cut", "--set", "simulation.no_such_key=1"], "no_such_key"),
 ])
 def test_cli_errors(argv, word, capsys, tmp_path):
     assert main(argv + ["--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and word in err[0]
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_set_changes_every_run(tmp_path):
+    """abmpm compare/paper --set KEY=VALUE: the setting reaches the runs' scenes."""
+    out = tmp_path / "cmp"
+    assert main(["compare", "dam_break", "--modes", "original", "--frames", "1", "--quiet",
+                 "--set", "simulation.refinement.merge=true", "--set", "simulation.fps=50", "--out", str(out)]) == 0
+    scene = json.loads((out / "dam_break" / "original" / "scene.json").read_text())
+    assert scene["simulation"]["fps"] == 50 and scene["simulation"]["refinement"]["merge"] is True

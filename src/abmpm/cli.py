@@ -314,7 +314,16 @@ def _cmd_compare(args) -> int:
         if not args.quiet:
             con.print(f"[{i}/{n}] {scene} {mode} -> {run_dir}", markup=False)
 
-    common = dict(modes=modes, device=args.device, frames=args.frames, progress=not args.quiet, on_run=on_run)
+    overrides = {}
+    if args.set:
+        from abmpm.sweep import parse_set
+
+        for key, values in parse_set(args.set).items():
+            if len(values) != 1:
+                raise AbmpmError(f"--set {key}: one value here (abmpm sweep runs several)")
+            overrides[key] = values[0]
+    common = dict(modes=modes, device=args.device, frames=args.frames, overrides=overrides,
+                  progress=not args.quiet, on_run=on_run)
     if args.command == "paper":
         out = Path(args.out) if args.out else Path("out") / ("paper_quick" if args.quick else "paper")
         records = run_paper(scenes=tuple(args.scenes) if args.scenes else _paper_scenes(),
@@ -525,6 +534,8 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("--quick", action="store_true",
                        help="coarser, shorter versions of the paper scenes (~30 min for all on 2 CPU cores)")
         c.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="frames per run (default: duration * fps)")
+        c.add_argument("--set", "-s", dest="set", action="append", default=[], metavar="KEY=VALUE",
+                       help="change a scene setting in every run, e.g. simulation.refinement.merge=true (repeatable)")
         c.add_argument("--out", "-o", metavar="DIR",
                        help="output folder (default: out/<scene>_compare/ or out/paper[_quick]/)")
         c.add_argument("--device", "-d", metavar="DEVICE", help="cpu, cuda or cuda:N")

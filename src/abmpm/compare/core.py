@@ -188,8 +188,9 @@ def remeasure(out) -> list[dict]:
 
 
 def run_paper(scenes=PAPER_SCENES, modes=MODES, out="out/paper", quick: bool = False, frames: int | None = None,
-              device: str | None = None, progress: bool = False, on_run=None) -> list[dict]:
-    """:func:`compare` for each of the paper's scenes."""
+              overrides: dict | None = None, device: str | None = None, progress: bool = False,
+              on_run=None) -> list[dict]:
+    """:func:`compare` for each of the paper's scenes (``overrides`` apply to all)."""
     scenes = tuple(scenes)
     bad = [s for s in scenes if s not in PAPER_SCENES]
     if bad or not scenes:
@@ -197,6 +198,6 @@ def run_paper(scenes=PAPER_SCENES, modes=MODES, out="out/paper", quick: bool = F
     check_modes(modes)
     records = []
     for name in scenes:
-        records += compare(name, modes, out, frames=frames, quick=quick, device=device,
+        records += compare(name, modes, out, frames=frames, overrides=overrides, quick=quick, device=device,
                            progress=progress, on_run=on_run)
     return records
