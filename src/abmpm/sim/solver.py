@@ -357,7 +357,7 @@ class MPMSolver:
     def _p2g(self, s: ParticleState, g: Grid, only_level: int = -1, overlap: int = 0) -> None:
         # with a second grid, the coarse P2G keeps each particle's stress for it
         store = len(self.grids) > 1 and not g.sparse
-        # each CPU thread scatters into its own accumulators, added up afterwards
+        # each CPU thread scatters into its own accumulators, which the grid update adds up
         grids = self.launcher.private_grids(g.level, g.mv, g.m).parts
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
