@@ -135,7 +135,7 @@ class Refinement(_Strict):
     boxes: Annotated[list[Box], Strict(False)] = Field(
         default_factory=list, description="extra boxes to refine, [min, max]"
     )
-    merge: bool = Field(False, description="merge split families back once they have left the region")
+    merge: bool = Field(True, description="merge split families back once they have left the region")
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
     reconstruct: bool = Field(
         True, description="surface particle reconstruction after a split (paper Section 4.3); false: plain split"
