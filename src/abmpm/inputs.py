@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry.motion import KinematicMotion
+from .geometry.meshes import limit_edge_length
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
 from .geometry.sampling import particle_volume, sample_body
@@ -50,13 +51,21 @@ def max_wave_speed(scene: Scene) -> float:
     return max(wave_speed(m) for m in scene.materials if m.name in used)
 
 
+# Longest triangle edge of a collider the solver sees, in coarse cells: closest
+# points on long sliver triangles are too inexact for the no-crossing test
+# (geometry.meshes.limit_edge_length).
+MAX_COLLIDER_EDGE_CELLS = 2.0
+
+
 def rigid_bodies(scene: Scene) -> list[RigidBody]:
-    """The scene's colliders as solver bodies (meshes built or loaded, placed at rest)."""
+    """The scene's colliders as solver bodies (meshes built or loaded, placed at rest,
+    no edge longer than MAX_COLLIDER_EDGE_CELLS coarse cells)."""
     bodies = []
     for i, c in enumerate(scene.colliders):
         mesh = collider_mesh(c, scene.resolve, f"colliders[{i}]")
+        vertices, faces = limit_edge_length(mesh.vertices, mesh.faces, MAX_COLLIDER_EDGE_CELLS * scene.simulation.dx)
         bodies.append(RigidBody(
-            vertices=np.asarray(mesh.vertices, dtype=np.float64), faces=np.asarray(mesh.faces, dtype=np.int64),
+            vertices=vertices, faces=faces,
             motion=KinematicMotion(c.motion, c.center),
             boundary=c.boundary, friction=c.friction, separation=c.separation,
         ))
