@@ -366,3 +366,19 @@ def test_solver_colliders_give_exact_closest_points_next_to_a_letter_panel():
               device="cpu")
     lateral = np.linalg.norm(out.numpy()[:, :2] - x[:, :2].astype(np.float32), axis=1)
     assert len(x) > 5000 and lateral.max() < 0.01 * fine_dx, lateral.max()
+
+
+def test_collider_subdivision_stays_bounded_for_a_huge_sheet():
+    """A 200 m floor under a 1 m domain at dx = 0.005 would need ~8e8 triangles of
+    two cells: the limit grows instead, so the solver's copy stays within its budget."""
+    from abmpm.geometry.meshes import limit_edge_length
+
+    v = np.array([[-100.0, 0, -100.0], [100.0, 0, -100.0], [100.0, 0, 100.0], [-100.0, 0, 100.0]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    v2, f2 = limit_edge_length(v, f, 0.01, max_faces=200_000)
+    assert 0 < len(f2) <= 200_000
+    area = 0.5 * np.linalg.norm(np.cross(v2[f2[:, 1]] - v2[f2[:, 0]], v2[f2[:, 2]] - v2[f2[:, 0]]), axis=1).sum()
+    assert abs(area - 200.0 * 200.0) < 1e-6 * 200.0 * 200.0  # the same surface
+    # a small mesh is split to the limit asked for
+    v3, f3 = limit_edge_length(v * 0.01, f, 0.1)
+    assert np.linalg.norm(v3[f3[:, [1, 2, 0]]] - v3[f3], axis=2).max() <= 0.1 + 1e-12

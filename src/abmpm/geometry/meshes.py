@@ -139,9 +139,12 @@ def place(mesh: trimesh.Trimesh, center, rotation_deg) -> trimesh.Trimesh:
     return out
 
 
-def limit_edge_length(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple[np.ndarray, np.ndarray]:
+def limit_edge_length(vertices: np.ndarray, faces: np.ndarray, max_edge: float,
+                      max_faces: int = 2_000_000) -> tuple[np.ndarray, np.ndarray]:
     """The same surface with no edge longer than ``max_edge`` (long triangles split into
-    four, as often as needed).
+    four, as often as needed), or, if that would take more than ``max_faces``
+    triangles (a sheet far larger than the domain at a fine spacing), with the
+    shortest edge limit that stays within them.
 
     Why the solver's colliders need it: a closest-point query computes barycentric
     coordinates in float32, and on a long sliver triangle (a triangulated letter
@@ -152,8 +155,15 @@ def limit_edge_length(vertices: np.ndarray, faces: np.ndarray, max_edge: float) 
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if len(f) == 0:
         return v, f
-    edges = np.linalg.norm(v[f[:, [1, 2, 0]]] - v[f], axis=2)
-    if edges.max() <= max_edge:
+    longest = np.linalg.norm(v[f[:, [1, 2, 0]]] - v[f], axis=2).max(axis=1)
+    if longest.max() <= max_edge:
         return v, f
+
+    def faces_after(limit: float) -> float:
+        # each round of splitting makes four triangles of one and halves the edges
+        return float((4.0 ** np.ceil(np.log2(np.maximum(longest / limit, 1.0)))).sum())
+
+    while faces_after(max_edge) > max_faces:
+        max_edge *= 2.0
     v, f = trimesh.remesh.subdivide_to_size(v, f, max_edge=max_edge, max_iter=64)
     return np.asarray(v, np.float64), np.asarray(f, np.int64)
