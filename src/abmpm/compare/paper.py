@@ -10,22 +10,19 @@ from __future__ import annotations
 
 PAPER_GPU = "Nvidia GTX 1650"
 
+def _row(label: str, figure: str, dx: str, dx_fine: str, particles: tuple, steps_per_second: tuple) -> dict:
+    # one line of Table 1; particles and steps/s in the order original, adaptive, finest
+    modes = ("original", "adaptive", "finest")
+    return {"label": label, "figure": figure, "dx": dx, "dx_fine": dx_fine,
+            "particles": dict(zip(modes, particles)), "steps_per_second": dict(zip(modes, steps_per_second))}
+
+
 PAPER_TABLE1: dict[str, dict] = {
-    "paper_panel": {"label": "Panel", "figure": "Figure 1", "dx": "1/100", "dx_fine": "1/200",
-                    "particles": {"original": 28_000, "adaptive": 71_000, "finest": 141_000},
-                    "steps_per_second": {"original": 3.9, "adaptive": 2.7, "finest": 2.4}},
-    "paper_hourglass": {"label": "Hourglass", "figure": "Figure 6", "dx": "1/64", "dx_fine": "1/128",
-                        "particles": {"original": 60_000, "adaptive": 167_000, "finest": 304_000},
-                        "steps_per_second": {"original": 5.9, "adaptive": 3.0, "finest": 1.7}},
-    "paper_cut": {"label": "Cut", "figure": "Figure 3", "dx": "1/30", "dx_fine": "1/90",
-                  "particles": {"original": 9_200, "adaptive": 27_000, "finest": 250_000},
-                  "steps_per_second": {"original": 14.5, "adaptive": 12.3, "finest": 7.8}},
-    "paper_bunny_split": {"label": "Bunny split", "figure": "Figure 4", "dx": "1/64", "dx_fine": "1/128",
-                          "particles": {"original": 10_000, "adaptive": 140_000, "finest": 280_000},
-                          "steps_per_second": {"original": 15.1, "adaptive": 8.2, "finest": 5.6}},
-    "paper_jelly": {"label": "Jelly collision", "figure": "Figure 8", "dx": "1/30", "dx_fine": "1/90",
-                    "particles": {"original": 21_000, "adaptive": 100_000, "finest": 560_000},
-                    "steps_per_second": {"original": 12.5, "adaptive": 6.5, "finest": 6.0}},
+    "paper_panel": _row("Panel", "Figure 1", "1/100", "1/200", (28_000, 71_000, 141_000), (3.9, 2.7, 2.4)),
+    "paper_hourglass": _row("Hourglass", "Figure 6", "1/64", "1/128", (60_000, 167_000, 304_000), (5.9, 3.0, 1.7)),
+    "paper_cut": _row("Cut", "Figure 3", "1/30", "1/90", (9_200, 27_000, 250_000), (14.5, 12.3, 7.8)),
+    "paper_bunny_split": _row("Bunny split", "Figure 4", "1/64", "1/128", (10_000, 140_000, 280_000), (15.1, 8.2, 5.6)),
+    "paper_jelly": _row("Jelly collision", "Figure 8", "1/30", "1/90", (21_000, 100_000, 560_000), (12.5, 6.5, 6.0)),
 }
 
 PAPER_SCENES = tuple(PAPER_TABLE1)
