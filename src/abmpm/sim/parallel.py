@@ -103,14 +103,15 @@ class Launcher:
         try:
             yield
         finally:
-            self._synchronize()
-            prof.seconds[(name, "(all)")] += time.perf_counter() - t0
-            prof.launches[(name, "(all)")] += 1
+            self._record((name, "(all)"), t0)
             prof.section = outer
 
-    def _synchronize(self) -> None:
+    def _record(self, key: tuple[str, str], t0: float) -> None:
+        # the profile's time and count for ``key``, from ``t0`` to the device being done
         if self.device.is_cuda:
             wp.synchronize_device(self.device)
+        self.profile.seconds[key] += time.perf_counter() - t0
+        self.profile.launches[key] += 1
 
     def ranges(self, n: int, start: int = 0) -> list[tuple[int, int]]:
         """(first, count) of each thread's part of ``range(start, start + n)``, in order."""
@@ -128,10 +129,7 @@ class Launcher:
         if self.profile is not None:
             t0 = time.perf_counter()
             parts = self._launch(kernel, n, inputs, start)
-            self._synchronize()
-            key = (self.profile.section, label or kernel.key)
-            self.profile.seconds[key] += time.perf_counter() - t0
-            self.profile.launches[key] += 1
+            self._record((self.profile.section, label or kernel.key), t0)
             return parts
         return self._launch(kernel, n, inputs, start)
 

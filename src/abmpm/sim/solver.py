@@ -61,6 +61,9 @@ wp.set_module_options({"enable_backward": False})
 # refinement step, in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
 
+# how a profile names the P2G passes (only_level -> suffix)
+_P2G_PASS = {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}
+
 
 @dataclass
 class SolverConfig:
@@ -361,7 +364,7 @@ class MPMSolver:
         grids = self.launcher.private_grids(g.level, g.mv, g.m).parts
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
-        label = f"P2G {g.name}" + {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}[only_level]
+        label = f"P2G {g.name}{_P2G_PASS[only_level]}"
         for first, count in self._ranges[only_level if only_level >= 0 else None]:
             self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], count,
                                  lambda part, first, count: [*common, *grids[part]], start=first, label=label)
