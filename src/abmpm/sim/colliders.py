@@ -38,7 +38,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 from .boundary import BOUNDARY_IDS, boundary_response
-from .grid import BLOCK_NODES, Grid, GridSpec, node_coords, node_index, node_position
+from .grid import BLOCK_NODES, Grid, GridSpec, nearest_node_coords, node_coords, node_index, node_position
 
 NODE_BAND = 3.5  # cells: nodes this close to a surface get a color (stencil reach 1.5 sqrt(3) ~ 2.6)
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
@@ -165,9 +165,7 @@ def near_surface(f: ColorField, g: GridSpec, x: wp.vec3):
     # lower bound of x's own (triangle inequality); an uncolored node is farther than
     # NODE_BAND. Saves the query, the costliest part of a particle near a collider, in
     # the shell between PARTICLE_BAND and NODE_BAND + half a cell diagonal.
-    X = (x - g.origin) * g.inv_dx
-    c = wp.vec3i(wp.clamp(int(X[0] + 0.5), 0, g.dims[0] - 1), wp.clamp(int(X[1] + 0.5), 0, g.dims[1] - 1),
-                 wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1))
+    c = nearest_node_coords(g, x)
     n = node_index(g, c[0], c[1], c[2])
     if n < 0:
         return False

@@ -113,6 +113,15 @@ def node_position(g: GridSpec, c: wp.vec3i):
     return g.origin + wp.vec3(float(c[0]), float(c[1]), float(c[2])) * g.dx
 
 
+@wp.func
+def nearest_node_coords(g: GridSpec, x: wp.vec3):
+    """Coordinates of the node nearest to x, clamped into the grid (any x, even NaN,
+    gives a node inside it)."""
+    X = (x - g.origin) * g.inv_dx
+    return wp.vec3i(wp.clamp(int(X[0] + 0.5), 0, g.dims[0] - 1), wp.clamp(int(X[1] + 0.5), 0, g.dims[1] - 1),
+                    wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1))
+
+
 @dataclass
 class Grid:
     spec: GridSpec

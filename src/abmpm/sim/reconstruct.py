@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .grid import GridSpec, node_coords, node_index
+from .grid import GridSpec, nearest_node_coords, node_coords, node_index
 from .materials import MaterialParams, volume_ratio
 from .state import ParticleArrays
 from .transfer import bspline_weights, stencil_base, stencil_offset
@@ -138,11 +138,8 @@ def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField):
 def is_surface_parent(f: SurfaceField, g: GridSpec, xp: wp.vec3, rho_p: float):
     # Eq. 18: the parent lies in the box Omega_i of its nearest node i; Eq. 16's
     # |G_i| > t_p makes that node, and so the parent, part of the surface
-    X = (xp - g.origin) * g.inv_dx
-    i = wp.clamp(int(X[0] + 0.5), 0, g.dims[0] - 1)
-    j = wp.clamp(int(X[1] + 0.5), 0, g.dims[1] - 1)
-    k = wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1)
-    G = f.grad[node_index(g, i, j, k)]
+    c = nearest_node_coords(g, xp)
+    G = f.grad[node_index(g, c[0], c[1], c[2])]
     return wp.length(G) > f.threshold * rho_p * g.dx * g.dx
 
 
