@@ -60,3 +60,15 @@ def test_kernels_compile_for_cuda_without_a_gpu():
         for arch in ARCHS:
             paths = wp.compile_aot_module(name, arch=arch)  # into the kernel cache: reruns are quick
             assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (name, arch)
+    # A scene's transfers are compiled for its own material models, each kernel in a
+    # module of its own (sim/materials dispatch): every model's P2G and G2P, in the
+    # variant with the most code (CPIC, block-sparse grid); the flags' other paths
+    # are the ones compiled above.
+    from abmpm.sim import transfer
+    from abmpm.sim.materials import ALL_MODELS
+
+    for model in ALL_MODELS:
+        for kernel in (transfer.p2g_kernel(True, True, False, (model,)), transfer.g2p_kernel(True, True, (model,))):
+            for arch in ARCHS:
+                paths = wp.compile_aot_module(kernel.module, arch=arch)
+                assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (kernel.key, arch)

@@ -55,11 +55,18 @@ class GridSpec:
 def node_index(g: GridSpec, i: int, j: int, k: int):
     """Flat storage index of node (i, j, k); -1 for an inactive node of a sparse grid."""
     if g.sparse == 0:
-        return (i * g.dims[1] + j) * g.dims[2] + k
+        return dense_node_index(g, i, j, k)
     s = g.blocks[i >> 2, j >> 2, k >> 2]
     if s < 0:
         return -1
     return s * BLOCK_NODES + ((i & 3) * BLOCK + (j & 3)) * BLOCK + (k & 3)
+
+
+@wp.func
+def dense_node_index(g: GridSpec, i: int, j: int, k: int):
+    """node_index of a dense grid, for kernels compiled for dense grids only (the
+    run-time test of ``g.sparse`` in the 27-node loops cost ~10% of the CPU P2G)."""
+    return (i * g.dims[1] + j) * g.dims[2] + k
 
 
 vec8i = wp.types.vector(length=8, dtype=wp.int32)

@@ -8,7 +8,10 @@ P2G therefore scatters each range into its own copy of the grid's accumulators
 (``Launcher.private_grids``), which the grid update adds up node by node in a fixed
 order (and clears for the next step), so that results depend on the thread count
 but not on timing (a resumed run is bit-identical to an uninterrupted one with the
-same threads).
+same threads). Each part's P2G also records the span of storage indices it reached,
+and the grid update reads and clears a private grid only there: particles sorted by
+cell reach a slab of the grid each, so the extra threads cost a slab, not the
+whole grid (at 128^3 the whole private grid is 40 MB to read and clear per step).
 
 Why private grids and not slabs of cell-sorted particles (two slabs processed at
 once never sharing a node): they need no ordering of the particles, work on the
@@ -30,12 +33,14 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
+import numpy as np
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
 THREADS_ENV = "ABMPM_THREADS"
 MIN_RANGE = 4096  # below this many items per thread, one thread is faster
+EMPTY_BOUND = 2**31 - 1  # the low end of a private grid's reached range before any P2G
 
 
 def default_threads() -> int:
@@ -65,6 +70,10 @@ class PrivateGrids:
     stride: int  # node storage of the grid
     extra: int  # threads beyond the first
     parts: list[tuple[wp.array, wp.array]]
+    # the storage indices part t's P2G reached, [lo, hi] at 2t, 2t + 1 (empty: lo > hi):
+    # the grid update adds and clears only those of each private grid
+    bounds: wp.array
+    bound_parts: list[wp.array]  # part t's view of ``bounds``
 
 
 @dataclass
@@ -113,28 +122,30 @@ class Launcher:
         self.profile.seconds[key] += time.perf_counter() - t0
         self.profile.launches[key] += 1
 
-    def ranges(self, n: int, start: int = 0) -> list[tuple[int, int]]:
-        """(first, count) of each thread's part of ``range(start, start + n)``, in order."""
-        t = min(self.threads, max(1, n // MIN_RANGE))
+    def ranges(self, n: int, start: int = 0, min_range: int = MIN_RANGE) -> list[tuple[int, int]]:
+        """(first, count) of each thread's part of ``range(start, start + n)``, in order
+        (no part shorter than ``min_range`` items unless there is only one)."""
+        t = min(self.threads, max(1, n // min_range))
         bounds = [start + n * i // t for i in range(t + 1)]
         return [(bounds[i], bounds[i + 1] - bounds[i]) for i in range(t)]
 
     def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence, start: int = 0,
-               label: str | None = None) -> int:
+               label: str | None = None, min_range: int = MIN_RANGE) -> int:
         """Run ``kernel`` over ``range(start, start + n)``: ``inputs(part, first, count)``
         gives each part's arguments after ``first`` (or one list shared by all parts).
-        Returns the number of parts. ``label`` names the launch in a profile."""
+        Returns the number of parts. ``label`` names the launch in a profile;
+        ``min_range`` is the fewest items worth a thread of their own."""
         if n <= 0:
             return 0
         if self.profile is not None:
             t0 = time.perf_counter()
-            parts = self._launch(kernel, n, inputs, start)
+            parts = self._launch(kernel, n, inputs, start, min_range)
             self._record((self.profile.section, label or kernel.key), t0)
             return parts
-        return self._launch(kernel, n, inputs, start)
+        return self._launch(kernel, n, inputs, start, min_range)
 
-    def _launch(self, kernel, n: int, inputs, start: int) -> int:
-        parts = self.ranges(n, start)
+    def _launch(self, kernel, n: int, inputs, start: int, min_range: int = MIN_RANGE) -> int:
+        parts = self.ranges(n, start, min_range)
         make = inputs if callable(inputs) else (lambda part, first, count: inputs)
 
         def run(part: int) -> None:
@@ -169,10 +180,12 @@ class Launcher:
             stacked_m = wp.zeros(size, dtype=float, device=self.device)
             parts = [(mv, m)] + [(stacked_mv[t * stride:(t + 1) * stride], stacked_m[t * stride:(t + 1) * stride])
                                  for t in range(extra)]
-            grids = self._private[grid_key] = PrivateGrids(stacked_mv, stacked_m, stride, extra, parts)
+            bounds = wp.array(np.tile([EMPTY_BOUND, -1], extra + 1), dtype=wp.int32, device=self.device)
+            grids = self._private[grid_key] = PrivateGrids(stacked_mv, stacked_m, stride, extra, parts, bounds,
+                                                           [bounds[2 * t:2 * t + 2] for t in range(extra + 1)])
         grids.parts[0] = (mv, m)
         return grids
 
     def private_arrays(self) -> list[wp.array]:
         """Every private accumulator allocated so far."""
-        return [a for grids in self._private.values() for a in (grids.mv, grids.m)]
+        return [a for grids in self._private.values() for a in (grids.mv, grids.m, grids.bounds)]

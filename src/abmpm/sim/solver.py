@@ -49,7 +49,7 @@ from .colliders import (
     grow_color_field,
 )
 from .grid import Grid
-from .materials import MaterialParams
+from .materials import MaterialParams, model_ids
 from .parallel import Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
@@ -95,6 +95,8 @@ class MPMSolver:
         self.device = device
         self.launcher = Launcher(device, config.threads)
         self.materials = wp.array(materials, dtype=MaterialParams, device=device)
+        # the transfers are compiled for the scene's material models only (materials.dispatch)
+        self.models = model_ids(materials)
         walls = {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}
         common = (config.domain_lo, config.domain_hi)
         self.grids = [Grid.create(*common, config.dx, config.base_level, config.gravity, walls, device)]
@@ -345,6 +347,12 @@ class MPMSolver:
     def _capture(self, state: ParticleState, n: int):
         first, steps = self._substep, self._steps
         wp.load_module(transfer, device=self.device)  # loaded before, not during, the capture
+        for g in self.grids:
+            kernels = [transfer.g2p_kernel(self.cpic, g.sparse, self.models)]
+            kernels += [transfer.p2g_kernel(self.cpic, g.sparse, overlap, self.models) for overlap in (False, True)
+                        if not (overlap and g.sparse)]
+            for k in kernels:
+                k.module.load(self.device)
         self.launcher.serial = True  # one thread records the launches in order
         try:
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
@@ -361,13 +369,15 @@ class MPMSolver:
         # with a second grid, the coarse P2G keeps each particle's stress for it
         store = len(self.grids) > 1 and not g.sparse
         # each CPU thread scatters into its own accumulators, which the grid update adds up
-        grids = self.launcher.private_grids(g.level, g.mv, g.m).parts
+        private = self.launcher.private_grids(g.level, g.mv, g.m)
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
         label = f"P2G {g.name}{_P2G_PASS[only_level]}"
         for first, count in self._ranges[only_level if only_level >= 0 else None]:
-            self.launcher.launch(transfer.P2G[self.cpic, g.sparse, only_level >= 0], count,
-                                 lambda part, first, count: [*common, *grids[part]], start=first, label=label)
+            self.launcher.launch(transfer.p2g_kernel(self.cpic, g.sparse, only_level >= 0, self.models), count,
+                                 lambda part, first, count: [*common, *private.parts[part], int(part > 0),
+                                                             private.bound_parts[part]],
+                                 start=first, label=label)
 
     def _occupied(self, g: Grid):
         # the coarse grid's occupancy in adaptive mode, else a placeholder
@@ -375,15 +385,21 @@ class MPMSolver:
 
     def _grid_update(self, g: Grid) -> None:
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        self.launcher.launch(transfer.GRID_UPDATE[private.extra > 0], g.node_count,
+        if private.extra > 0:  # the other CPU threads' P2G sums first
+            chunks = -(-g.node_count // transfer.SUM_CHUNK)
+            self.launcher.launch(transfer.add_private_sums, chunks,
+                                 [g.mv, g.m, private.mv, private.m, private.extra, private.stride, private.bounds],
+                                 label=f"add thread sums {g.name}", min_range=64)
+            wp.launch(transfer.reset_reach, dim=private.extra + 1, inputs=[private.bounds], device=self.device)
+        self.launcher.launch(transfer.grid_update, -(-g.node_count // transfer.SUM_CHUNK),
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
-                              int(self.refiner is not None and not g.sparse),
-                              private.mv, private.m, private.extra, private.stride], label=f"grid update {g.name}")
+                              int(self.refiner is not None and not g.sparse), g.node_count],
+                             label=f"grid update {g.name}", min_range=64)
 
     def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
         common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
         for first, count in self._ranges[g.level]:
-            self.launcher.launch(transfer.G2P[self.cpic, g.sparse], count,
+            self.launcher.launch(transfer.g2p_kernel(self.cpic, g.sparse, self.models), count,
                                  lambda part, first, count: [*common, signal_slots[part]], start=first,
                                  label=f"G2P {g.name}")
 

@@ -10,6 +10,8 @@ so the variants that do not need it do not carry it.
 
 from __future__ import annotations
 
+import functools
+
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
@@ -31,7 +33,9 @@ from .colliders import (
     stop_crossing,
 )
 from .grid import (
+    BLOCK_NODES,
     GridSpec,
+    dense_node_index,
     node_coords,
     node_index,
     node_position,
@@ -39,7 +43,7 @@ from .grid import (
     stencil_slots,
     vec8i,
 )
-from .materials import MaterialParams, deform_particle, particle_stress, sound_speed_ratio
+from .materials import ALL_MODELS, MaterialParams, dispatch
 from .state import ParticleArrays
 
 FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
@@ -74,18 +78,26 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
     return X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
-def _variant(kind: str, *flags: bool):
+def _variant(kind: str, *flags: bool, models: tuple[int, ...] = ALL_MODELS):
     # A kernel named after its variant (e.g. p2g_101): Warp's CPU graph replay finds
-    # kernels by name, so variants sharing the closure's name all replayed as the last
+    # kernels by name, so variants sharing the closure's name all replayed as the last.
+    # Kernels for every model live in this module (compiled together, the CUDA check
+    # compiles them all); those for a scene's own models each get a module of their
+    # own, compiled the first time a scene asks for them (``p2g_kernel``).
     def kernel(f):
         f.__qualname__ = kind + "_" + "".join(str(int(flag)) for flag in flags)
-        return wp.kernel(f)
+        if models == ALL_MODELS:
+            return wp.kernel(f)
+        f.__qualname__ += "_m" + "".join(map(str, models))
+        return wp.kernel(f, enable_backward=False, module="unique")
 
     return kernel
 
 
-def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
-    @_variant("p2g", cpic, sparse, overlap_pass)
+def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, ...] = ALL_MODELS):
+    particle_stress = dispatch(models).particle_stress
+
+    @_variant("p2g", cpic, sparse, overlap_pass, models=models)
     def p2g(
         first: int,  # this launch's first particle (sim/parallel.py)
         s: ParticleArrays,
@@ -101,6 +113,8 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         grid_occupied: wp.array(dtype=wp.int32),
         grid_mv: wp.array(dtype=wp.vec3),
         grid_m: wp.array(dtype=float),
+        track: int,  # a CPU thread's private accumulators: record the span reached in ``reached``
+        reached: wp.array(dtype=wp.int32),
     ):
         # Eqs. 8-10: every particle scatters to every grid, with that grid's kernel
         # and spacing; on a sparse grid only to its active nodes. The stress is
@@ -130,7 +144,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         if wp.static(sparse):
             tau = tau_store[p]
         else:
-            tau = particle_stress(materials[s.material[p]], s.F, s.history, p, Cp)
+            tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, Cp)
             if store != 0:
                 tau_store[p] = tau
         if wp.static(overlap_pass):
@@ -151,6 +165,8 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
         slots = vec8i()
         if wp.static(sparse):
             slots = stencil_slots(g, base)
+        if track != 0:
+            record_reach(g, slots, base, reached)
         for i in range(3):
             for j in range(3):
                 for k in range(3):
@@ -158,7 +174,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
                     if wp.static(sparse):
                         n = stencil_node(g, slots, base, i, j, k)
                     else:
-                        n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                        n = dense_node_index(g, base[0] + i, base[1] + j, base[2] + k)
                     if wp.static(sparse):
                         if n < 0:
                             continue
@@ -175,6 +191,34 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool):
                     wp.atomic_add(grid_m, n, weight * m)
 
     return p2g
+
+
+@wp.func
+def record_reach(g: GridSpec, slots: vec8i, base: wp.vec3i, reached: wp.array(dtype=wp.int32)):
+    # widen [reached[0], reached[1]] to the storage indices of the stencil at base:
+    # the corner nodes on a dense grid, the blocks' whole slots on a sparse one
+    lo = int(0)
+    hi = int(0)
+    if g.sparse == 0:
+        lo = dense_node_index(g, base[0], base[1], base[2])
+        hi = dense_node_index(g, base[0] + 2, base[1] + 2, base[2] + 2)
+    else:
+        lo = 2147483647
+        hi = -1
+        for q in range(8):
+            if slots[q] >= 0:
+                lo = wp.min(lo, slots[q] * BLOCK_NODES)
+                hi = wp.max(hi, slots[q] * BLOCK_NODES + BLOCK_NODES - 1)
+    wp.atomic_min(reached, 0, lo)
+    wp.atomic_max(reached, 1, hi)
+
+
+@wp.kernel
+def reset_reach(reached: wp.array(dtype=wp.int32)):
+    # after the grid update: every part's span empty again
+    t = wp.tid()
+    reached[2 * t] = 2147483647
+    reached[2 * t + 1] = -1
 
 
 @wp.func
@@ -202,67 +246,102 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
     return False
 
 
-def _make_grid_update(private: bool):
-    @_variant("grid_update", private)
-    def grid_update(
-        first: int,  # this launch's first node (sim/parallel.py)
-        g: GridSpec,
-        colliders: ColliderArrays,
-        color: ColorField,
-        dt_now: wp.array(dtype=float),  # [dt]
-        grid_mv: wp.array(dtype=wp.vec3),
-        grid_m: wp.array(dtype=float),
-        grid_v: wp.array(dtype=wp.vec3),
-        grid_occupied: wp.array(dtype=wp.int32),
-        clear_occupied: int,
-        private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
-        private_m: wp.array(dtype=float),
-        extra: int,
-        stride: int,
-    ):
-        # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
-        # clears the P2G accumulators for the next step so the grid is swept once.
-        n = wp.tid() + first
-        m = grid_m[n]
-        mv_sum = wp.vec3(0.0)
-        if wp.static(private):  # the other CPU threads' sums, in a fixed order
-            mv_sum = grid_mv[n]
-            for t in range(extra):
-                q = t * stride + n
-                mv_sum = mv_sum + private_mv[q]
-                m = m + private_m[q]
-                private_mv[q] = wp.vec3(0.0)
-                private_m[q] = 0.0
-        vi = wp.vec3(0.0)
-        if m > 0.0:
-            if wp.static(not private):
-                mv_sum = grid_mv[n]
-            vi = mv_sum / m + dt_now[0] * g.gravity
-            xi = node_position(g, node_coords(g, n))
-            if colliders.enabled != 0:
-                vi = node_contact(colliders, color, g, vi, xi, n)
-            # the domain walls have the last word: a collider never pushes material through them
-            tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
-            for d in range(3):
-                if xi[d] <= g.domain_lo[d] + tol:
-                    nrm = wp.vec3(0.0)
-                    nrm[d] = 1.0
-                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
-                if xi[d] >= g.domain_hi[d] - tol:
-                    nrm = wp.vec3(0.0)
-                    nrm[d] = -1.0
-                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
-        grid_v[n] = vi
-        grid_mv[n] = wp.vec3(0.0)
-        grid_m[n] = 0.0
-        if clear_occupied != 0:
-            grid_occupied[n] = 0
-
-    return grid_update
+SUM_CHUNK = 64  # nodes per thread of add_private_sums
 
 
-def _make_g2p(cpic: bool, sparse: bool):
-    @_variant("g2p", cpic, sparse)
+@wp.kernel
+def add_private_sums(
+    first: int,  # this launch's first chunk of SUM_CHUNK nodes (sim/parallel.py)
+    grid_mv: wp.array(dtype=wp.vec3),
+    grid_m: wp.array(dtype=float),
+    private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
+    private_m: wp.array(dtype=float),
+    extra: int,
+    stride: int,
+    reached: wp.array(dtype=wp.int32),  # [lo, hi] of the storage indices each part's P2G reached
+):
+    # Before the grid update on more than one CPU thread: add the other threads' P2G
+    # sums, in a fixed order, where they reached, and clear them for the next step.
+    # One kernel thread per chunk of nodes: Warp's CPU backend spends a few ns per
+    # kernel thread, as much as the addition itself. (Folded into the grid update,
+    # the same loop had made every node of it three times slower.)
+    n0 = (wp.tid() + first) * SUM_CHUNK
+    n1 = wp.min(n0 + SUM_CHUNK, stride)
+    for t in range(extra):
+        lo = wp.max(n0, reached[2 * t + 2])
+        hi = wp.min(n1 - 1, reached[2 * t + 3])
+        for n in range(lo, hi + 1):
+            q = t * stride + n
+            grid_mv[n] = grid_mv[n] + private_mv[q]
+            grid_m[n] = grid_m[n] + private_m[q]
+            private_mv[q] = wp.vec3(0.0)
+            private_m[q] = 0.0
+
+
+@wp.func
+def update_node(
+    n: int,
+    g: GridSpec,
+    colliders: ColliderArrays,
+    color: ColorField,
+    dt_now: wp.array(dtype=float),  # [dt]
+    grid_mv: wp.array(dtype=wp.vec3),
+    grid_m: wp.array(dtype=float),
+    grid_v: wp.array(dtype=wp.vec3),
+    grid_occupied: wp.array(dtype=wp.int32),
+    clear_occupied: int,
+):
+    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
+    # clears the P2G accumulators for the next step so the grid is swept once.
+    m = grid_m[n]
+    vi = wp.vec3(0.0)
+    if m > 0.0:
+        vi = grid_mv[n] / m + dt_now[0] * g.gravity
+        xi = node_position(g, node_coords(g, n))
+        if colliders.enabled != 0:
+            vi = node_contact(colliders, color, g, vi, xi, n)
+        # the domain walls have the last word: a collider never pushes material through them
+        tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
+        for d in range(3):
+            if xi[d] <= g.domain_lo[d] + tol:
+                nrm = wp.vec3(0.0)
+                nrm[d] = 1.0
+                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
+            if xi[d] >= g.domain_hi[d] - tol:
+                nrm = wp.vec3(0.0)
+                nrm[d] = -1.0
+                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+    grid_v[n] = vi
+    grid_mv[n] = wp.vec3(0.0)
+    grid_m[n] = 0.0
+    if clear_occupied != 0:
+        grid_occupied[n] = 0
+
+
+@wp.kernel
+def grid_update(
+    first: int,  # this launch's first chunk of SUM_CHUNK nodes (sim/parallel.py)
+    g: GridSpec,
+    colliders: ColliderArrays,
+    color: ColorField,
+    dt_now: wp.array(dtype=float),  # [dt]
+    grid_mv: wp.array(dtype=wp.vec3),
+    grid_m: wp.array(dtype=float),
+    grid_v: wp.array(dtype=wp.vec3),
+    grid_occupied: wp.array(dtype=wp.int32),
+    clear_occupied: int,
+    count: int,
+):
+    n0 = (wp.tid() + first) * SUM_CHUNK
+    for n in range(n0, wp.min(n0 + SUM_CHUNK, count)):
+        update_node(n, g, colliders, color, dt_now, grid_mv, grid_m, grid_v, grid_occupied, clear_occupied)
+
+
+def _make_g2p(cpic: bool, sparse: bool, models: tuple[int, ...] = ALL_MODELS):
+    ops = dispatch(models)
+    deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
+
+    @_variant("g2p", cpic, sparse, models=models)
     def g2p(
         first: int,  # this launch's first particle (sim/parallel.py)
         materials: wp.array(dtype=MaterialParams),
@@ -326,7 +405,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         new_C = (4.0 * g.inv_dx * g.inv_dx) * B
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
         mat = materials[s.material[p]]
-        deform_particle(mat, s.F, s.history, p, new_C, dt)
+        wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
         xn = xp + dt * new_v
         # Nodes on and beyond the wall planes enforce the walls, so a particle can sink
         # at most ~dx/2 into a wall before they stop it; the clamp one cell out is only
@@ -373,7 +452,7 @@ def _make_g2p(cpic: bool, sparse: bool):
         if not wp.isfinite(speed):
             speed = FAST
         wp.atomic_max(signal, 0, speed)
-        wp.atomic_max(signal, 1, sound_speed_ratio(mat, s.history[p]))
+        wp.atomic_max(signal, 1, wp.static(sound_speed_ratio)(mat, s.history[p]))
         s.x[p] = xn
         s.v[p] = new_v
         s.C[p] = new_C
@@ -385,5 +464,19 @@ _VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
 # P2G[cpic, sparse, overlap_pass]: the overlap pass is the level-split coarse P2G of adaptive mode
 P2G = {(c, s, o): _make_p2g(c, s, o) for c, s in _VARIANTS for o in ((False, True) if not s else (False,))}
 G2P = {key: _make_g2p(*key) for key in _VARIANTS}
-# GRID_UPDATE[private]: with the sums of other CPU threads' P2G accumulators to add
-GRID_UPDATE = {private: _make_grid_update(private) for private in (False, True)}
+
+
+@functools.cache
+def p2g_kernel(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, ...] = ALL_MODELS):
+    """``P2G[cpic, sparse, overlap_pass]`` reaching only the material models ``models``."""
+    if models == ALL_MODELS:
+        return P2G[cpic, sparse, overlap_pass]
+    return _make_p2g(cpic, sparse, overlap_pass, models)
+
+
+@functools.cache
+def g2p_kernel(cpic: bool, sparse: bool, models: tuple[int, ...] = ALL_MODELS):
+    """``G2P[cpic, sparse]`` reaching only the material models ``models``."""
+    if models == ALL_MODELS:
+        return G2P[cpic, sparse]
+    return _make_g2p(cpic, sparse, models)

@@ -14,7 +14,10 @@ one integer comparison per registered model).
 
 from __future__ import annotations
 
+import functools
 import importlib
+from dataclasses import dataclass
+from typing import Any
 
 import warp as wp
 
@@ -96,32 +99,6 @@ def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: f
 
 
 @wp.func
-def particle_stress(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int, C: wp.mat33):
-    """:func:`kirchhoff_stress` of particle p, reading F only for models that use it."""
-    for i in range(wp.static(len(REGISTRY))):
-        if mat.model == i:
-            Fp = wp.identity(n=3, dtype=float)
-            if wp.static(REGISTRY[i].uses_F):
-                Fp = F[p]
-            return wp.static(REGISTRY[i].stress)(mat, Fp, C, history[p])
-    return wp.mat33(0.0)
-
-
-@wp.func
-def deform_particle(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int, C: wp.mat33, dt: float):
-    """:func:`update_deformation` of particle p in place, touching F only for models that use it."""
-    for i in range(wp.static(len(REGISTRY))):
-        if mat.model == i:
-            Fp = wp.identity(n=3, dtype=float)
-            if wp.static(REGISTRY[i].uses_F):
-                Fp = F[p]
-            d = wp.static(REGISTRY[i].update)(mat, Fp, C, history[p], dt)
-            if wp.static(REGISTRY[i].uses_F):
-                F[p] = d.F
-            history[p] = d.history
-
-
-@wp.func
 def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
     """J = V / V0 of a particle: det F, or the ``history`` of models without F."""
     for i in range(wp.static(len(REGISTRY))):
@@ -131,20 +108,95 @@ def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
     return wp.determinant(F)
 
 
-@wp.func
-def sound_speed_ratio(mat: MaterialParams, history: float):
-    """Sound speed over the speed at rest (>= 1) for models that stiffen under
-    compression (fluid); 1 for the others."""
-    for i in range(wp.static(len(REGISTRY))):
-        if wp.static(REGISTRY[i].sound_speed_ratio is not None):
-            if mat.model == i:
-                return wp.static(REGISTRY[i].sound_speed_ratio)(mat, history)
-    return 1.0
+@dataclass(frozen=True)
+class Dispatch:
+    """The per-particle model dispatch of the transfer kernels, over a given set of
+    model ids (:func:`dispatch`)."""
+
+    models: tuple[int, ...]
+    particle_stress: Any  # wp.func (mat, F array, history array, p, C) -> tau
+    deform_particle: Any  # wp.func (mat, F array, history array, p, C, dt), in place
+    sound_speed_ratio: Any  # wp.func (mat, history) -> float
+
+
+ALL_MODELS = tuple(range(len(REGISTRY)))
+
+
+def _func(f, name: str, models: tuple[int, ...]):
+    # one Warp function per model set: a distinct name, or Warp would take the
+    # closures of different sets for overloads of one function
+    f.__qualname__ = f.__name__ = name + "_" + "_".join(map(str, models))
+    return wp.func(f)
+
+
+@functools.cache
+def dispatch(models: tuple[int, ...] = ALL_MODELS) -> Dispatch:
+    """The dispatch functions reaching only the models ``models`` (sorted ids).
+
+    Why: a kernel that can reach every registered model carries all their code
+    (SVDs, return mappings) even where a scene uses one; on Warp's CPU backend that
+    alone made the fluid benchmark's P2G a third slower. A scene's transfer kernels
+    are compiled for the models it uses; with a single model there is no test at all.
+    """
+    models = tuple(sorted(models))
+    if not models or any(i not in ALL_MODELS for i in models):
+        raise ValueError(f"model ids {models}: expected a non-empty subset of {ALL_MODELS}")
+    single = len(models) == 1
+
+    def particle_stress(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int,
+                        C: wp.mat33):
+        # tau of particle p, reading F only for models that use it
+        for i in range(wp.static(len(models))):
+            if wp.static(single) or mat.model == wp.static(models[i]):
+                Fp = wp.identity(n=3, dtype=float)
+                if wp.static(REGISTRY[models[i]].uses_F):
+                    Fp = F[p]
+                return wp.static(REGISTRY[models[i]].stress)(mat, Fp, C, history[p])
+        return wp.mat33(0.0)
+
+    def deform_particle(mat: MaterialParams, F: wp.array(dtype=wp.mat33), history: wp.array(dtype=float), p: int,
+                        C: wp.mat33, dt: float):
+        # update_deformation of particle p in place, touching F only for models that use it
+        for i in range(wp.static(len(models))):
+            if wp.static(single) or mat.model == wp.static(models[i]):
+                Fp = wp.identity(n=3, dtype=float)
+                if wp.static(REGISTRY[models[i]].uses_F):
+                    Fp = F[p]
+                d = wp.static(REGISTRY[models[i]].update)(mat, Fp, C, history[p], dt)
+                if wp.static(REGISTRY[models[i]].uses_F):
+                    F[p] = d.F
+                history[p] = d.history
+
+    def sound_speed_ratio(mat: MaterialParams, history: float):
+        # sound speed over the speed at rest (>= 1) of models that stiffen under
+        # compression (fluid); 1 for the others
+        for i in range(wp.static(len(models))):
+            if wp.static(REGISTRY[models[i]].sound_speed_ratio is not None):
+                if wp.static(single) or mat.model == wp.static(models[i]):
+                    return wp.static(REGISTRY[models[i]].sound_speed_ratio)(mat, history)
+        return 1.0
+
+    return Dispatch(models, _func(particle_stress, "particle_stress", models),
+                    _func(deform_particle, "deform_particle", models),
+                    _func(sound_speed_ratio, "sound_speed_ratio", models))
+
+
+def model_ids(materials) -> tuple[int, ...]:
+    """The sorted model ids of a list of :class:`MaterialParams` rows."""
+    return tuple(sorted({int(m.model) for m in materials}))
+
+
+# every model: what kernels outside the step's transfers use
+_ALL = dispatch()
+particle_stress = _ALL.particle_stress
+deform_particle = _ALL.deform_particle
+sound_speed_ratio = _ALL.sound_speed_ratio
 
 
 __all__ = [
     "REGISTRY", "MODEL_IDS", "BY_NAME", "MaterialModel", "Parameter", "MaterialParams", "Deformation",
     "material_params", "wave_speed", "uses_deformation_gradient", "lame", "pressure_from_J",
     "kirchhoff_stress", "update_deformation", "particle_stress", "deform_particle", "sound_speed_ratio",
+    "Dispatch", "dispatch", "model_ids", "ALL_MODELS",
     "volume_ratio",
 ]
