@@ -151,8 +151,21 @@ class MPMSolver:
         if config.cuda_graph and not self.launcher.device.is_cuda:
             warnings.warn("cuda_graph is ignored on the CPU: substeps run eagerly on all threads", stacklevel=2)
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
+        self._kernels_loaded = False
         self._graphs: dict[tuple, Any] = {}  # (first slot, substeps) -> graph, for _graph_buffers
         self._graph_buffers: tuple | None = None
+
+    def transfer_kernels(self) -> list:
+        """Every transfer kernel this solver's substeps may launch. Those made for the
+        scene's material models are compiled on first use, each in a module of its
+        own: ``begin_segment`` loads them all the first time, so that a level reached
+        only later in the run (the fine grid's) never compiles in the middle of it."""
+        kernels = [transfer.add_private_sums, transfer.reset_reach, transfer.grid_update]
+        for g in self.grids:
+            kernels.append(transfer.g2p_kernel(self.cpic, g.sparse, self.models))
+            kernels += [transfer.p2g_kernel(self.cpic, g.sparse, overlap, self.models)
+                        for overlap in ((False, True) if not g.sparse else (False,))]
+        return kernels
 
     # ------------------------------------------------------------------ questions
 
@@ -231,6 +244,10 @@ class MPMSolver:
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
+        if not self._kernels_loaded:  # compiled once, here: never in a substep or a capture
+            for k in self.transfer_kernels():
+                k.module.load(self.device)
+            self._kernels_loaded = True
         self._dt.fill_(dt)
         wp.copy(self.signal, self._signal_at_rest)
         if substeps > 1:  # a longer segment can be stopped early: see rewind()
@@ -347,12 +364,6 @@ class MPMSolver:
     def _capture(self, state: ParticleState, n: int):
         first, steps = self._substep, self._steps
         wp.load_module(transfer, device=self.device)  # loaded before, not during, the capture
-        for g in self.grids:
-            kernels = [transfer.g2p_kernel(self.cpic, g.sparse, self.models)]
-            kernels += [transfer.p2g_kernel(self.cpic, g.sparse, overlap, self.models) for overlap in (False, True)
-                        if not (overlap and g.sparse)]
-            for k in kernels:
-                k.module.load(self.device)
         self.launcher.serial = True  # one thread records the launches in order
         try:
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:

@@ -6,8 +6,8 @@ device fields, wave speed, ``stress`` and ``update`` device functions; see
 ``elastic.py`` for the shortest one) and add its name to ``MODULES``. Nothing else changes: the scene schema
 is generated from the registry, ``MaterialParams`` holds the union of the models'
 device fields, and the transfer kernels reach a model only through the dispatch
-functions below (unrolled at compile time with ``wp.static``, so a kernel costs
-one integer comparison per registered model).
+functions below (unrolled at compile time with ``wp.static`` over the models a
+scene uses: :func:`dispatch`).
 
 ``model`` ids are positions in ``REGISTRY``.
 """
