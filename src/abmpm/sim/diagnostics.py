@@ -12,31 +12,40 @@ def affine_angular_momentum(mass: np.ndarray, C: np.ndarray, dx: float) -> np.nd
     quadratic B-spline (D_p = dx^2/4 I); without it APIC's angular momentum only
     looks conserved up to the discretisation error.
     """
-    skew = np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
-    return (mass[:, None] * skew).sum(axis=0) * (dx * dx / 4.0)
+    mass = np.asarray(mass, dtype=np.float64)
+    def c(a: int, b: int) -> np.ndarray:
+        return C[:, a, b].astype(np.float64)
+
+    skew = (c(2, 1) - c(1, 2), c(0, 2) - c(2, 0), c(1, 0) - c(0, 1))
+    return np.array([mass @ w for w in skew]) * (dx * dx / 4.0)
 
 
 def frame_diagnostics(s: dict[str, np.ndarray], dx_of_level: dict[int, float], gravity=(0.0, -9.81, 0.0)) -> dict:
+    # float64 sums of float32 fields, by dot products (a frame end of a 100k-particle
+    # run took 33 ms with full float64 copies and np.cross, a few ms this way)
     m = s["mass"].astype(np.float64)
     x = s["x"].astype(np.float64)
     v = s["v"].astype(np.float64)
-    C = s["C"].astype(np.float64)
     p = m[:, None] * v
-    L = np.cross(x, p).sum(axis=0)
+    L = np.array([x[:, 1] @ p[:, 2] - x[:, 2] @ p[:, 1],
+                  x[:, 2] @ p[:, 0] - x[:, 0] @ p[:, 2],
+                  x[:, 0] @ p[:, 1] - x[:, 1] @ p[:, 0]])
     for level, dx in dx_of_level.items():
         sel = s["level"] == level
-        if sel.any():
-            L = L + affine_angular_momentum(m[sel], C[sel], dx)
-    speed = np.sqrt((v * v).sum(axis=1))
+        if sel.all():
+            L = L + affine_angular_momentum(m, s["C"], dx)
+        elif sel.any():
+            L = L + affine_angular_momentum(m[sel], s["C"][sel], dx)
+    speed2 = np.einsum("ij,ij->i", v, v)
     levels = np.bincount(s["level"], minlength=2) if len(m) else np.zeros(2, int)
     return {
         "total_mass": float(m.sum()),
         "momentum": p.sum(axis=0).tolist(),
         "angular_momentum": L.tolist(),
-        "kinetic_energy": float(0.5 * (m * speed * speed).sum()),
+        "kinetic_energy": float(0.5 * (m @ speed2)),
         # relative to the origin: only its changes mean something
-        "potential_energy": float(-(m * (x @ np.asarray(gravity, dtype=np.float64))).sum()),
-        "max_speed": float(speed.max()) if len(speed) else 0.0,
+        "potential_energy": float(-(m @ (x @ np.asarray(gravity, dtype=np.float64)))),
+        "max_speed": float(np.sqrt(speed2.max())) if len(speed2) else 0.0,
         "count": int(len(m)),
         "count_per_level": [int(c) for c in levels],
     }

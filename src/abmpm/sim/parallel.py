@@ -41,6 +41,9 @@ wp.set_module_options({"enable_backward": False})
 THREADS_ENV = "ABMPM_THREADS"
 MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 EMPTY_BOUND = 2**31 - 1  # the low end of a private grid's reached range before any P2G
+# ints between two threads' reached spans: every P2G particle updates its thread's span,
+# so two spans must not share a 64-byte cache line (false sharing)
+REACH_STRIDE = 16
 
 
 def default_threads() -> int:
@@ -70,7 +73,7 @@ class PrivateGrids:
     stride: int  # node storage of the grid
     extra: int  # threads beyond the first
     parts: list[tuple[wp.array, wp.array]]
-    # the storage indices part t's P2G reached, [lo, hi] at 2t, 2t + 1 (empty: lo > hi):
+    # the storage indices part t's P2G reached, [lo, hi] at REACH_STRIDE t + (0, 1) (empty: lo > hi):
     # the grid update adds and clears only those of each private grid
     bounds: wp.array
     bound_parts: list[wp.array]  # part t's view of ``bounds``
@@ -180,9 +183,11 @@ class Launcher:
             stacked_m = wp.zeros(size, dtype=float, device=self.device)
             parts = [(mv, m)] + [(stacked_mv[t * stride:(t + 1) * stride], stacked_m[t * stride:(t + 1) * stride])
                                  for t in range(extra)]
-            bounds = wp.array(np.tile([EMPTY_BOUND, -1], extra + 1), dtype=wp.int32, device=self.device)
+            bounds = wp.array(np.tile([EMPTY_BOUND, -1] + [0] * (REACH_STRIDE - 2), extra + 1), dtype=wp.int32,
+                              device=self.device)
             grids = self._private[grid_key] = PrivateGrids(stacked_mv, stacked_m, stride, extra, parts, bounds,
-                                                           [bounds[2 * t:2 * t + 2] for t in range(extra + 1)])
+                                                           [bounds[REACH_STRIDE * t:REACH_STRIDE * t + 2]
+                                                            for t in range(extra + 1)])
         grids.parts[0] = (mv, m)
         return grids
 

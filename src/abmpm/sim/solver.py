@@ -60,6 +60,7 @@ wp.set_module_options({"enable_backward": False})
 # The longest segment (substeps between two host points): segments end at every
 # refinement step, in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
+SIGNAL_STRIDE = 16  # floats between two CFL signal slots: one 64-byte cache line each
 
 # how a profile names the P2G passes (only_level -> suffix)
 _P2G_PASS = {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}
@@ -125,12 +126,15 @@ class MPMSolver:
         self._cmask = self._no_occ  # per-particle compatibility mask, P2G -> G2P (CPIC)
         self._dt = wp.zeros(1, dtype=float, device=device)  # the segment's dt, read by the kernels
         # [max speed, max sound-speed stiffening] per substep of a segment and CPU thread,
-        # written by G2P (atomic max) into its own slot; one view per slot, made here
+        # written by G2P (atomic max, every particle) into its own slot; one view per
+        # slot, made here. Slots are a cache line apart: two CPU threads updating the
+        # same line on every particle cost G2P a tenth of its two-thread speed.
         threads = self.launcher.threads
-        at_rest = np.tile([0.0, 1.0], SEGMENT_MAX * threads)
+        at_rest = np.tile([0.0, 1.0] + [0.0] * (SIGNAL_STRIDE - 2), SEGMENT_MAX * threads)
         self.signal = wp.array(at_rest, dtype=float, device=device)
         self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
-        self._signal_slots = [[self.signal[2 * (k * threads + t): 2 * (k * threads + t) + 2] for t in range(threads)]
+        slot = [SIGNAL_STRIDE * i for i in range(SEGMENT_MAX * threads)]
+        self._signal_slots = [[self.signal[slot[k * threads + t]: slot[k * threads + t] + 2] for t in range(threads)]
                               for k in range(SEGMENT_MAX)]
         # Where each level's particles lie: level (None: every level) -> ranges
         # (first, count). After a sort by (level, cell) each level of adaptive mode
@@ -160,7 +164,7 @@ class MPMSolver:
         scene's material models are compiled on first use, each in a module of its
         own: ``begin_segment`` loads them all the first time, so that a level reached
         only later in the run (the fine grid's) never compiles in the middle of it."""
-        kernels = [transfer.add_private_sums, transfer.reset_reach, transfer.grid_update]
+        kernels = [transfer.reset_reach, transfer.grid_update]
         for g in self.grids:
             kernels.append(transfer.g2p_kernel(self.cpic, g.sparse, self.models))
             kernels += [transfer.p2g_kernel(self.cpic, g.sparse, overlap, self.models)
@@ -306,7 +310,7 @@ class MPMSolver:
         particle's speed (m/s; 1e30 if a velocity was not finite) and the largest
         factor by which compression raised a fluid's sound speed, shape (substeps, 2).
         One small read from the device per segment: the CFL time step follows them."""
-        a = self.signal.numpy().reshape(SEGMENT_MAX, self.launcher.threads, 2)[: self._substep]
+        a = self.signal.numpy().reshape(SEGMENT_MAX, self.launcher.threads, SIGNAL_STRIDE)[: self._substep, :, :2]
         return a.max(axis=1).astype(np.float64)
 
     def rewind(self, state: ParticleState, substeps: int) -> None:
@@ -396,16 +400,13 @@ class MPMSolver:
 
     def _grid_update(self, g: Grid) -> None:
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        if private.extra > 0:  # the other CPU threads' P2G sums first
-            chunks = -(-g.node_count // transfer.SUM_CHUNK)
-            self.launcher.launch(transfer.add_private_sums, chunks,
-                                 [g.mv, g.m, private.mv, private.m, private.extra, private.stride, private.bounds],
-                                 label=f"add thread sums {g.name}", min_range=64)
-            wp.launch(transfer.reset_reach, dim=private.extra + 1, inputs=[private.bounds], device=self.device)
-        self.launcher.launch(transfer.grid_update, -(-g.node_count // transfer.SUM_CHUNK),
+        self.launcher.launch(transfer.grid_update, -(-g.node_count // transfer.NODE_CHUNK),
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
-                              int(self.refiner is not None and not g.sparse), g.node_count],
+                              int(self.refiner is not None and not g.sparse), g.node_count,
+                              private.mv, private.m, private.extra, private.stride, private.bounds],
                              label=f"grid update {g.name}", min_range=64)
+        if private.extra > 0:
+            wp.launch(transfer.reset_reach, dim=private.extra + 1, inputs=[private.bounds], device=self.device)
 
     def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
         common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]

@@ -44,9 +44,11 @@ from .grid import (
     vec8i,
 )
 from .materials import ALL_MODELS, MaterialParams, dispatch
+from .parallel import REACH_STRIDE as PARALLEL_REACH_STRIDE
 from .state import ParticleArrays
 
 FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
+REACH_STRIDE = wp.constant(PARALLEL_REACH_STRIDE)  # ints between two CPU threads' reached spans
 
 
 @wp.func
@@ -217,8 +219,8 @@ def record_reach(g: GridSpec, slots: vec8i, base: wp.vec3i, reached: wp.array(dt
 def reset_reach(reached: wp.array(dtype=wp.int32)):
     # after the grid update: every part's span empty again
     t = wp.tid()
-    reached[2 * t] = 2147483647
-    reached[2 * t + 1] = -1
+    reached[REACH_STRIDE * t] = 2147483647
+    reached[REACH_STRIDE * t + 1] = -1
 
 
 @wp.func
@@ -246,30 +248,19 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
     return False
 
 
-SUM_CHUNK = 64  # nodes per thread of add_private_sums
+NODE_CHUNK = 64  # nodes per kernel thread of the grid update
 
 
-@wp.kernel
-def add_private_sums(
-    first: int,  # this launch's first chunk of SUM_CHUNK nodes (sim/parallel.py)
-    grid_mv: wp.array(dtype=wp.vec3),
-    grid_m: wp.array(dtype=float),
-    private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
-    private_m: wp.array(dtype=float),
-    extra: int,
-    stride: int,
-    reached: wp.array(dtype=wp.int32),  # [lo, hi] of the storage indices each part's P2G reached
-):
-    # Before the grid update on more than one CPU thread: add the other threads' P2G
-    # sums, in a fixed order, where they reached, and clear them for the next step.
-    # One kernel thread per chunk of nodes: Warp's CPU backend spends a few ns per
-    # kernel thread, as much as the addition itself. (Folded into the grid update,
-    # the same loop had made every node of it three times slower.)
-    n0 = (wp.tid() + first) * SUM_CHUNK
-    n1 = wp.min(n0 + SUM_CHUNK, stride)
+@wp.func
+def add_sums(n0: int, n1: int, grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float),
+             private_mv: wp.array(dtype=wp.vec3), private_m: wp.array(dtype=float), extra: int, stride: int,
+             reached: wp.array(dtype=wp.int32)):
+    # With more than one CPU thread: add the other threads' P2G sums to nodes
+    # [n0, n1), in a fixed order, only where each thread's P2G reached, and clear them
+    # for the next step.
     for t in range(extra):
-        lo = wp.max(n0, reached[2 * t + 2])
-        hi = wp.min(n1 - 1, reached[2 * t + 3])
+        lo = wp.max(n0, reached[REACH_STRIDE * (t + 1)])
+        hi = wp.min(n1 - 1, reached[REACH_STRIDE * (t + 1) + 1])
         for n in range(lo, hi + 1):
             q = t * stride + n
             grid_mv[n] = grid_mv[n] + private_mv[q]
@@ -320,7 +311,7 @@ def update_node(
 
 @wp.kernel
 def grid_update(
-    first: int,  # this launch's first chunk of SUM_CHUNK nodes (sim/parallel.py)
+    first: int,  # this launch's first chunk of NODE_CHUNK nodes (sim/parallel.py)
     g: GridSpec,
     colliders: ColliderArrays,
     color: ColorField,
@@ -330,10 +321,21 @@ def grid_update(
     grid_v: wp.array(dtype=wp.vec3),
     grid_occupied: wp.array(dtype=wp.int32),
     clear_occupied: int,
-    count: int,
+    count: int,  # nodes
+    private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
+    private_m: wp.array(dtype=float),
+    extra: int,  # threads beyond the first
+    stride: int,  # node storage per private grid
+    reached: wp.array(dtype=wp.int32),  # [lo, hi] of the storage indices each part's P2G reached
 ):
-    n0 = (wp.tid() + first) * SUM_CHUNK
-    for n in range(n0, wp.min(n0 + SUM_CHUNK, count)):
+    # Eqs. 3-4 over a chunk of nodes per kernel thread: Warp's CPU backend spends a
+    # few ns per kernel thread, as much as adding a node's private sums. (Adding them
+    # node by node inside a one-node kernel had made every node three times slower,
+    # even with nothing to add.)
+    n0 = (wp.tid() + first) * NODE_CHUNK
+    n1 = wp.min(n0 + NODE_CHUNK, count)
+    add_sums(n0, n1, grid_mv, grid_m, private_mv, private_m, extra, stride, reached)
+    for n in range(n0, n1):
         update_node(n, g, colliders, color, dt_now, grid_mv, grid_m, grid_v, grid_occupied, clear_occupied)
 
 
