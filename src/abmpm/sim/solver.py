@@ -400,9 +400,10 @@ class MPMSolver:
 
     def _grid_update(self, g: Grid) -> None:
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        self.launcher.launch(transfer.grid_update, -(-g.node_count // transfer.NODE_CHUNK),
+        chunk = 1 if self.launcher.device.is_cuda else transfer.CPU_NODE_CHUNK
+        self.launcher.launch(transfer.grid_update, -(-g.node_count // chunk),
                              [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
-                              int(self.refiner is not None and not g.sparse), g.node_count,
+                              int(self.refiner is not None and not g.sparse), g.node_count, chunk,
                               private.mv, private.m, private.extra, private.stride, private.bounds],
                              label=f"grid update {g.name}", min_range=64)
         if private.extra > 0:

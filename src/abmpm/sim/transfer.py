@@ -248,7 +248,7 @@ def stencil_occupied(g: GridSpec, occupied: wp.array(dtype=wp.int32), base: wp.v
     return False
 
 
-NODE_CHUNK = 64  # nodes per kernel thread of the grid update
+CPU_NODE_CHUNK = 64  # nodes per kernel thread of the grid update on the CPU (1 on a GPU)
 
 
 @wp.func
@@ -311,7 +311,7 @@ def update_node(
 
 @wp.kernel
 def grid_update(
-    first: int,  # this launch's first chunk of NODE_CHUNK nodes (sim/parallel.py)
+    first: int,  # this launch's first chunk of ``chunk`` nodes (sim/parallel.py)
     g: GridSpec,
     colliders: ColliderArrays,
     color: ColorField,
@@ -322,6 +322,7 @@ def grid_update(
     grid_occupied: wp.array(dtype=wp.int32),
     clear_occupied: int,
     count: int,  # nodes
+    chunk: int,  # nodes per kernel thread
     private_mv: wp.array(dtype=wp.vec3),  # the other CPU threads' P2G sums (sim/parallel.py)
     private_m: wp.array(dtype=float),
     extra: int,  # threads beyond the first
@@ -332,8 +333,8 @@ def grid_update(
     # few ns per kernel thread, as much as adding a node's private sums. (Adding them
     # node by node inside a one-node kernel had made every node three times slower,
     # even with nothing to add.)
-    n0 = (wp.tid() + first) * NODE_CHUNK
-    n1 = wp.min(n0 + NODE_CHUNK, count)
+    n0 = (wp.tid() + first) * chunk
+    n1 = wp.min(n0 + chunk, count)
     add_sums(n0, n1, grid_mv, grid_m, private_mv, private_m, extra, stride, reached)
     for n in range(n0, n1):
         update_node(n, g, colliders, color, dt_now, grid_mv, grid_m, grid_v, grid_occupied, clear_occupied)
