@@ -103,6 +103,7 @@ def run(
         w.begin(ctx)
 
     every = scene.output.frame_every
+    sim.solver.load_kernels()  # compiling (a cold kernel cache) is not simulation time
     steps0 = sim.steps
     io_seconds = 0.0
     message, err = None, None

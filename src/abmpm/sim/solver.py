@@ -32,6 +32,7 @@ Everything else (sampling, output, diagnostics, time stepping) lives outside.
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -171,6 +172,22 @@ class MPMSolver:
                         for overlap in ((False, True) if not g.sparse else (False,))]
         return kernels
 
+    def load_kernels(self) -> None:
+        """Load, compiling where the kernel cache lacks them, every kernel module the
+        step uses and the transfer kernels made for this scene's models. Runs before
+        the first segment at the latest; a runner calls it before starting its clock,
+        so that compiling is not counted as simulation time."""
+        if self._kernels_loaded:
+            return
+        from . import colliders as collider_kernels
+        from . import reconstruct, refine
+
+        for module in (transfer, collider_kernels, reconstruct, refine, sys.modules[__name__]):
+            wp.load_module(module, device=self.device)
+        for k in self.transfer_kernels():
+            k.module.load(self.device)
+        self._kernels_loaded = True
+
     # ------------------------------------------------------------------ questions
 
     @property
@@ -248,10 +265,7 @@ class MPMSolver:
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
-        if not self._kernels_loaded:  # compiled once, here: never in a substep or a capture
-            for k in self.transfer_kernels():
-                k.module.load(self.device)
-            self._kernels_loaded = True
+        self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
         self._dt.fill_(dt)
         wp.copy(self.signal, self._signal_at_rest)
         if substeps > 1:  # a longer segment can be stopped early: see rewind()
