@@ -59,6 +59,19 @@ def test_two_threads_are_deterministic_and_match_one(monkeypatch, mode):
     assert np.abs(a.x - one.x).max() < 1e-6
 
 
+def test_three_threads_match_one(monkeypatch):
+    """More threads than this machine's two cores (a user's laptop has more): every
+    extra thread's private grid, reached span and CFL slot has its own place. A
+    wrong stride (two threads' sums in one slot, a span read at another thread's
+    offset) drops or doubles whole parts of P2G. Tolerances as for two threads."""
+    a, sim = run_steps(monkeypatch, 3)
+    assert len(sim.solver.launcher.ranges(sim.particle_count)) == 3
+    one, _ = run_steps(monkeypatch, 1)
+    assert np.array_equal(a.id, one.id)
+    assert np.abs(a.v - one.v).max() < 1e-4 * np.abs(one.v).max()
+    assert np.abs(a.x - one.x).max() < 1e-6
+
+
 def test_parallel_p2g_loses_no_mass(monkeypatch):
     """Two threads scatter at once: a race on a node would lose its add. The mass on
     the grid after P2G, with the second thread's private accumulators (which the
