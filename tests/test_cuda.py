@@ -32,9 +32,8 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
 KERNEL_MODULES = ["abmpm.sim.transfer", "abmpm.sim.colliders", "abmpm.sim.reconstruct", "abmpm.sim.refine",
                   "abmpm.sim.solver"]
-# Turing (T4, RTX 20xx), Ampere (RTX 30xx, A10), Hopper (H100): every compile-time
-# variant of the transfers (P2G[cpic, sparse, overlap], G2P[cpic, sparse]) is a
-# kernel of its module, so compiling the module compiles them all
+# Turing (T4, RTX 20xx), Ampere (RTX 30xx, A10), Hopper (H100); the transfers'
+# compile-time variants are modules of their own, compiled one by one below
 ARCHS = [75, 86, 90]
 
 
@@ -60,15 +59,18 @@ def test_kernels_compile_for_cuda_without_a_gpu():
         for arch in ARCHS:
             paths = wp.compile_aot_module(name, arch=arch)  # into the kernel cache: reruns are quick
             assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (name, arch)
-    # A scene's transfers are compiled for its own material models, each kernel in a
-    # module of its own (sim/materials dispatch): every model's P2G and G2P, in the
-    # variant with the most code (CPIC, block-sparse grid); the flags' other paths
-    # are the ones compiled above.
+    # The transfers are compiled per variant and per set of material models, each
+    # kernel in a module of its own (sim/transfer.py, sim/materials dispatch): every
+    # variant for every model at once, and every model alone in the variant with the
+    # most code (CPIC, block-sparse grid).
     from abmpm.sim import transfer
     from abmpm.sim.materials import ALL_MODELS
 
+    kernels = [transfer.p2g_kernel(*flags) for flags in transfer.P2G_VARIANTS]
+    kernels += [transfer.g2p_kernel(*flags) for flags in transfer.G2P_VARIANTS]
     for model in ALL_MODELS:
-        for kernel in (transfer.p2g_kernel(True, True, False, (model,)), transfer.g2p_kernel(True, True, (model,))):
-            for arch in ARCHS:
-                paths = wp.compile_aot_module(kernel.module, arch=arch)
-                assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (kernel.key, arch)
+        kernels += [transfer.p2g_kernel(True, True, False, (model,)), transfer.g2p_kernel(True, True, (model,))]
+    for kernel in kernels:
+        for arch in ARCHS:
+            paths = wp.compile_aot_module(kernel.module, arch=arch)
+            assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (kernel.key, arch)

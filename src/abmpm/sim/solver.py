@@ -173,8 +173,8 @@ class MPMSolver:
         return kernels
 
     def load_kernels(self) -> None:
-        """Load, compiling where the kernel cache lacks them, every kernel module the
-        step uses and the transfer kernels made for this scene's models. Runs before
+        """Load, compiling where the kernel cache lacks them, the kernel modules this
+        solver's step uses and the transfer kernels made for its scene's models. Runs before
         the first segment at the latest; a runner calls it before starting its clock,
         so that compiling is not counted as simulation time."""
         if self._kernels_loaded:
@@ -182,7 +182,12 @@ class MPMSolver:
         from . import colliders as collider_kernels
         from . import reconstruct, refine
 
-        for module in (transfer, collider_kernels, reconstruct, refine, sys.modules[__name__]):
+        modules = [transfer, sys.modules[__name__]]
+        if self.colliders is not None:
+            modules.append(collider_kernels)
+        if self.refiner is not None:
+            modules += [refine, reconstruct]
+        for module in modules:
             wp.load_module(module, device=self.device)
         for k in self.transfer_kernels():
             k.module.load(self.device)

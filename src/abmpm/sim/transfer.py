@@ -81,16 +81,13 @@ def stencil_offset(g: GridSpec, x: wp.vec3, base: wp.vec3i):
 
 
 def _variant(kind: str, *flags: bool, models: tuple[int, ...] = ALL_MODELS):
-    # A kernel named after its variant (e.g. p2g_101): Warp's CPU graph replay finds
+    # A kernel named after its variant (e.g. p2g_101_m0): Warp's CPU graph replay finds
     # kernels by name, so variants sharing the closure's name all replayed as the last.
-    # Kernels for every model live in this module (compiled together, the CUDA check
-    # compiles them all); those for a scene's own models each get a module of their
-    # own, compiled the first time a scene asks for them (``p2g_kernel``).
+    # Each variant gets a module of its own, compiled the first time a scene asks for
+    # it (``p2g_kernel``): a scene compiles the few it uses, not all of them for every
+    # model (27 s on this CPU with a cold kernel cache).
     def kernel(f):
-        f.__qualname__ = kind + "_" + "".join(str(int(flag)) for flag in flags)
-        if models == ALL_MODELS:
-            return wp.kernel(f)
-        f.__qualname__ += "_m" + "".join(map(str, models))
+        f.__qualname__ = kind + "_" + "".join(str(int(flag)) for flag in flags) + "_m" + "".join(map(str, models))
         return wp.kernel(f, enable_backward=False, module="unique")
 
     return kernel
@@ -463,23 +460,20 @@ def _make_g2p(cpic: bool, sparse: bool, models: tuple[int, ...] = ALL_MODELS):
     return g2p
 
 
-_VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
-# P2G[cpic, sparse, overlap_pass]: the overlap pass is the level-split coarse P2G of adaptive mode
-P2G = {(c, s, o): _make_p2g(c, s, o) for c, s in _VARIANTS for o in ((False, True) if not s else (False,))}
-G2P = {key: _make_g2p(*key) for key in _VARIANTS}
+# The compile-time variants: P2G[cpic, sparse, overlap_pass] (the overlap pass is the
+# level-split coarse P2G of adaptive mode) and G2P[cpic, sparse], each for a set of
+# material models.
+P2G_VARIANTS = [(c, s, o) for c in (False, True) for s in (False, True) for o in ((False, True) if not s else (False,))]
+G2P_VARIANTS = [(c, s) for c in (False, True) for s in (False, True)]
 
 
 @functools.cache
 def p2g_kernel(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, ...] = ALL_MODELS):
-    """``P2G[cpic, sparse, overlap_pass]`` reaching only the material models ``models``."""
-    if models == ALL_MODELS:
-        return P2G[cpic, sparse, overlap_pass]
+    """P2G[cpic, sparse, overlap_pass] reaching only the material models ``models``."""
     return _make_p2g(cpic, sparse, overlap_pass, models)
 
 
 @functools.cache
 def g2p_kernel(cpic: bool, sparse: bool, models: tuple[int, ...] = ALL_MODELS):
-    """``G2P[cpic, sparse]`` reaching only the material models ``models``."""
-    if models == ALL_MODELS:
-        return G2P[cpic, sparse]
+    """G2P[cpic, sparse] reaching only the material models ``models``."""
     return _make_g2p(cpic, sparse, models)
