@@ -266,46 +266,6 @@ def add_sums(n0: int, n1: int, grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.arra
             private_m[q] = 0.0
 
 
-@wp.func
-def update_node(
-    n: int,
-    g: GridSpec,
-    colliders: ColliderArrays,
-    color: ColorField,
-    dt_now: wp.array(dtype=float),  # [dt]
-    grid_mv: wp.array(dtype=wp.vec3),
-    grid_m: wp.array(dtype=float),
-    grid_v: wp.array(dtype=wp.vec3),
-    grid_occupied: wp.array(dtype=wp.int32),
-    clear_occupied: int,
-):
-    # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
-    # clears the P2G accumulators for the next step so the grid is swept once.
-    m = grid_m[n]
-    vi = wp.vec3(0.0)
-    if m > 0.0:
-        vi = grid_mv[n] / m + dt_now[0] * g.gravity
-        xi = node_position(g, node_coords(g, n))
-        if colliders.enabled != 0:
-            vi = node_contact(colliders, color, g, vi, xi, n)
-        # the domain walls have the last word: a collider never pushes material through them
-        tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
-        for d in range(3):
-            if xi[d] <= g.domain_lo[d] + tol:
-                nrm = wp.vec3(0.0)
-                nrm[d] = 1.0
-                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
-            if xi[d] >= g.domain_hi[d] - tol:
-                nrm = wp.vec3(0.0)
-                nrm[d] = -1.0
-                vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
-    grid_v[n] = vi
-    grid_mv[n] = wp.vec3(0.0)
-    grid_m[n] = 0.0
-    if clear_occupied != 0:
-        grid_occupied[n] = 0
-
-
 @wp.kernel
 def grid_update(
     first: int,  # this launch's first chunk of ``chunk`` nodes (sim/parallel.py)
@@ -334,7 +294,31 @@ def grid_update(
     n1 = wp.min(n0 + chunk, count)
     add_sums(n0, n1, grid_mv, grid_m, private_mv, private_m, extra, stride, reached)
     for n in range(n0, n1):
-        update_node(n, g, colliders, color, dt_now, grid_mv, grid_m, grid_v, grid_occupied, clear_occupied)
+        # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), domain walls, collider contact; also
+        # clears the P2G accumulators for the next step so the grid is swept once.
+        m = grid_m[n]
+        vi = wp.vec3(0.0)
+        if m > 0.0:
+            vi = grid_mv[n] / m + dt_now[0] * g.gravity
+            xi = node_position(g, node_coords(g, n))
+            if colliders.enabled != 0:
+                vi = node_contact(colliders, color, g, vi, xi, n)
+            # the domain walls have the last word: a collider never pushes material through them
+            tol = 1.0e-3 * g.dx  # nodes on a wall plane belong to the wall despite round-off
+            for d in range(3):
+                if xi[d] <= g.domain_lo[d] + tol:
+                    nrm = wp.vec3(0.0)
+                    nrm[d] = 1.0
+                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
+                if xi[d] >= g.domain_hi[d] - tol:
+                    nrm = wp.vec3(0.0)
+                    nrm[d] = -1.0
+                    vi = boundary_response(vi, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+        grid_v[n] = vi
+        grid_mv[n] = wp.vec3(0.0)
+        grid_m[n] = 0.0
+        if clear_occupied != 0:
+            grid_occupied[n] = 0
 
 
 def _make_g2p(cpic: bool, sparse: bool, models: tuple[int, ...] = ALL_MODELS):
