@@ -41,9 +41,11 @@ wp.set_module_options({"enable_backward": False})
 THREADS_ENV = "ABMPM_THREADS"
 MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 EMPTY_BOUND = 2**31 - 1  # the low end of a private grid's reached range before any P2G
-# ints between two threads' reached spans: every P2G particle updates its thread's span,
-# so two spans must not share a 64-byte cache line (false sharing)
-REACH_STRIDE = 16
+# 4-byte words in a 64-byte cache line: per-thread slots that every particle updates
+# (P2G's reached spans, G2P's CFL signal) lie this far apart, or two threads writing
+# one line slow each other down (false sharing)
+CACHE_LINE_WORDS = 16
+REACH_STRIDE = CACHE_LINE_WORDS  # ints between two threads' reached spans
 
 
 def default_threads() -> int:

@@ -51,7 +51,7 @@ from .colliders import (
 )
 from .grid import Grid
 from .materials import MaterialParams, model_ids
-from .parallel import Launcher
+from .parallel import CACHE_LINE_WORDS, Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
 from .state import DTYPES, DYNAMIC, FIELDS, ParticleArrays, ParticleState
@@ -61,7 +61,7 @@ wp.set_module_options({"enable_backward": False})
 # The longest segment (substeps between two host points): segments end at every
 # refinement step, in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
-SIGNAL_STRIDE = 16  # floats between two CFL signal slots: one 64-byte cache line each
+SIGNAL_STRIDE = CACHE_LINE_WORDS  # floats between two CFL signal slots
 
 # how a profile names the P2G passes (only_level -> suffix)
 _P2G_PASS = {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}
@@ -134,9 +134,8 @@ class MPMSolver:
         at_rest = np.tile([0.0, 1.0] + [0.0] * (SIGNAL_STRIDE - 2), SEGMENT_MAX * threads)
         self.signal = wp.array(at_rest, dtype=float, device=device)
         self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
-        slot = [SIGNAL_STRIDE * i for i in range(SEGMENT_MAX * threads)]
-        self._signal_slots = [[self.signal[slot[k * threads + t]: slot[k * threads + t] + 2] for t in range(threads)]
-                              for k in range(SEGMENT_MAX)]
+        self._signal_slots = [[self.signal[SIGNAL_STRIDE * i: SIGNAL_STRIDE * i + 2]
+                               for i in range(k * threads, (k + 1) * threads)] for k in range(SEGMENT_MAX)]
         # Where each level's particles lie: level (None: every level) -> ranges
         # (first, count). After a sort by (level, cell) each level of adaptive mode
         # is one contiguous range and its transfers run over it alone: equal work per
@@ -161,10 +160,10 @@ class MPMSolver:
         self._graph_buffers: tuple | None = None
 
     def transfer_kernels(self) -> list:
-        """Every transfer kernel this solver's substeps may launch. Those made for the
-        scene's material models are compiled on first use, each in a module of its
-        own: ``begin_segment`` loads them all the first time, so that a level reached
-        only later in the run (the fine grid's) never compiles in the middle of it."""
+        """Every transfer kernel this solver's substeps may launch. Each is compiled
+        on first use, in a module of its own: ``load_kernels`` loads them all before
+        the first segment, so that a level reached only later in the run (the fine
+        grid's) never compiles in the middle of it."""
         kernels = [transfer.reset_reach, transfer.grid_update]
         for g in self.grids:
             kernels.append(transfer.g2p_kernel(self.cpic, g.sparse, self.models))
@@ -386,7 +385,7 @@ class MPMSolver:
 
     def _capture(self, state: ParticleState, n: int):
         first, steps = self._substep, self._steps
-        wp.load_module(transfer, device=self.device)  # loaded before, not during, the capture
+        self.load_kernels()  # loaded before, not during, the capture
         self.launcher.serial = True  # one thread records the launches in order
         try:
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:

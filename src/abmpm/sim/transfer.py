@@ -44,11 +44,12 @@ from .grid import (
     vec8i,
 )
 from .materials import ALL_MODELS, MaterialParams, dispatch
-from .parallel import REACH_STRIDE as PARALLEL_REACH_STRIDE
+from . import parallel
 from .state import ParticleArrays
 
 FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
-REACH_STRIDE = wp.constant(PARALLEL_REACH_STRIDE)  # ints between two CPU threads' reached spans
+REACH_STRIDE = wp.constant(parallel.REACH_STRIDE)  # ints between two CPU threads' reached spans
+EMPTY_BOUND = wp.constant(parallel.EMPTY_BOUND)  # the low end of a span nothing reached yet
 
 
 @wp.func
@@ -202,7 +203,7 @@ def record_reach(g: GridSpec, slots: vec8i, base: wp.vec3i, reached: wp.array(dt
         lo = dense_node_index(g, base[0], base[1], base[2])
         hi = dense_node_index(g, base[0] + 2, base[1] + 2, base[2] + 2)
     else:
-        lo = 2147483647
+        lo = EMPTY_BOUND
         hi = -1
         for q in range(8):
             if slots[q] >= 0:
@@ -216,7 +217,7 @@ def record_reach(g: GridSpec, slots: vec8i, base: wp.vec3i, reached: wp.array(dt
 def reset_reach(reached: wp.array(dtype=wp.int32)):
     # after the grid update: every part's span empty again
     t = wp.tid()
-    reached[REACH_STRIDE * t] = 2147483647
+    reached[REACH_STRIDE * t] = EMPTY_BOUND
     reached[REACH_STRIDE * t + 1] = -1
 
 

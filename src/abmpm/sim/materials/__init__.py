@@ -186,17 +186,9 @@ def model_ids(materials) -> tuple[int, ...]:
     return tuple(sorted({int(m.model) for m in materials}))
 
 
-# every model: what kernels outside the step's transfers use
-_ALL = dispatch()
-particle_stress = _ALL.particle_stress
-deform_particle = _ALL.deform_particle
-sound_speed_ratio = _ALL.sound_speed_ratio
-
-
 __all__ = [
     "REGISTRY", "MODEL_IDS", "BY_NAME", "MaterialModel", "Parameter", "MaterialParams", "Deformation",
     "material_params", "wave_speed", "uses_deformation_gradient", "lame", "pressure_from_J",
-    "kirchhoff_stress", "update_deformation", "particle_stress", "deform_particle", "sound_speed_ratio",
-    "Dispatch", "dispatch", "model_ids", "ALL_MODELS",
+    "kirchhoff_stress", "update_deformation", "Dispatch", "dispatch", "model_ids", "ALL_MODELS",
     "volume_ratio",
 ]
