@@ -51,7 +51,7 @@ from .colliders import (
 )
 from .grid import Grid
 from .materials import MaterialParams, model_ids
-from .parallel import CACHE_LINE_WORDS, Launcher
+from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, Launcher
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
 from .state import DTYPES, DYNAMIC, FIELDS, ParticleArrays, ParticleState
@@ -410,7 +410,7 @@ class MPMSolver:
             self.launcher.launch(transfer.p2g_kernel(self.cpic, g.sparse, only_level >= 0, self.models), count,
                                  lambda part, first, count: [*common, *private.parts[part], int(part > 0),
                                                              private.bound_parts[part]],
-                                 start=first, label=label)
+                                 start=first, label=label, min_range=MIN_TRANSFER_RANGE)
 
     def _occupied(self, g: Grid):
         # the coarse grid's occupancy in adaptive mode, else a placeholder
@@ -432,7 +432,7 @@ class MPMSolver:
         for first, count in self._ranges[g.level]:
             self.launcher.launch(transfer.g2p_kernel(self.cpic, g.sparse, self.models), count,
                                  lambda part, first, count: [*common, signal_slots[part]], start=first,
-                                 label=f"G2P {g.name}")
+                                 label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE)
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
