@@ -98,6 +98,12 @@ class KernelProfile:
     section: str = "substep"
 
 
+def _same_arguments(a: list, b: list) -> bool:
+    # the same objects (arrays, structs), or equal plain numbers
+    return len(a) == len(b) and all(x is y or (type(x) is type(y) and type(x) in (int, float, bool) and x == y)
+                                    for x, y in zip(a, b))
+
+
 class Launcher:
     """Launches range kernels over ``threads`` CPU threads (one launch on CUDA)."""
 
@@ -106,7 +112,8 @@ class Launcher:
         self.threads = 1 if self.device.is_cuda else max(1, int(threads or default_threads()))
         self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="abmpm") if self.threads > 1 else None
         self._private: dict[int, PrivateGrids] = {}
-        self._warm: set = set()  # (kernel, argument types) launched once already
+        self._warm: set = set()  # kernels (a generic one: with its argument types) launched once already
+        self._recorded: dict = {}  # (kernel, (label, site), part) -> (count, arguments, recorded launch)
         self.serial = False  # run the parts one after the other on this thread (graph capture)
         self.profile: KernelProfile | None = None  # attach one to time every launch
 
@@ -140,31 +147,33 @@ class Launcher:
         return [(bounds[i], bounds[i + 1] - bounds[i]) for i in range(t)]
 
     def launch(self, kernel, n: int, inputs: Callable[[int, int, int], Sequence] | Sequence, start: int = 0,
-               label: str | None = None, min_range: int = MIN_RANGE) -> int:
+               label: str | None = None, min_range: int = MIN_RANGE, site: int = 0) -> int:
         """Run ``kernel`` over ``range(start, start + n)``: ``inputs(part, first, count)``
         gives each part's arguments after ``first`` (or one list shared by all parts).
-        Returns the number of parts. ``label`` names the launch in a profile;
-        ``min_range`` is the fewest items worth a thread of their own."""
+        Returns the number of parts. ``label`` names the launch in a profile and,
+        with ``site`` (e.g. which of a call's ranges this is), the place the launch is
+        made from; ``min_range`` is the fewest items worth a thread of their own."""
         if n <= 0:
             return 0
         if self.profile is not None:
             t0 = time.perf_counter()
-            parts = self._launch(kernel, n, inputs, start, min_range)
+            parts = self._launch(kernel, n, inputs, start, min_range, (label, site))
             self._record((self.profile.section, label or kernel.key), t0)
             return parts
-        return self._launch(kernel, n, inputs, start, min_range)
+        return self._launch(kernel, n, inputs, start, min_range, (label, site))
 
-    def _launch(self, kernel, n: int, inputs, start: int, min_range: int = MIN_RANGE) -> int:
+    def _launch(self, kernel, n: int, inputs, start: int, min_range: int, site: tuple) -> int:
         parts = self.ranges(n, start, min_range)
         make = inputs if callable(inputs) else (lambda part, first, count: inputs)
+        args = [[first, *make(part, first, count)] for part, (first, count) in enumerate(parts)]
 
         def run(part: int) -> None:
-            first, count = parts[part]
-            wp.launch(kernel, dim=count, inputs=[first, *make(part, first, count)], device=self.device)
+            self._run(kernel, parts[part][1], args[part], (kernel, site, part))
 
         # The first launch of a kernel (for a generic one, of each argument type)
         # compiles or specialises it: that must not happen on two threads at once.
-        key = (kernel, tuple(a.dtype if isinstance(a, wp.array) else type(a) for a in make(0, *parts[0])))
+        key = (kernel, tuple(a.dtype if isinstance(a, wp.array) else type(a) for a in args[0])) \
+            if kernel.is_generic else kernel
         if len(parts) == 1 or key not in self._warm or self.serial:
             self._warm.add(key)
             for part in range(len(parts)):
@@ -175,6 +184,22 @@ class Launcher:
         for f in futures:
             f.result()
         return len(parts)
+
+    def _run(self, kernel, count: int, args: list, key: tuple) -> None:
+        # On the CPU a launch from the same place with the same arguments replays the
+        # launch recorded the first time: packing a kernel's arguments costs ~15 us of
+        # Python per launch, a replay ~3 us, and a step makes dozens of launches.
+        # Arguments are the same when each is the same object (an array, a struct,
+        # whose fields a replay reads afresh) or an equal number. Graph capture and
+        # CUDA launch afresh.
+        if self.serial or self.device.is_cuda:
+            wp.launch(kernel, dim=count, inputs=args, device=self.device)
+            return
+        rec = self._recorded.get(key)
+        if rec is None or rec[0] != count or not _same_arguments(rec[1], args):
+            rec = self._recorded[key] = (count, args, wp.launch(kernel, dim=count, inputs=args, device=self.device,
+                                                                record_cmd=True))
+        rec[2].launch()
 
     def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> PrivateGrids:
         """Per-part P2G accumulators of a grid: part 0 writes the grid's own, the

@@ -406,11 +406,11 @@ class MPMSolver:
         common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
         label = f"P2G {g.name}{_P2G_PASS[only_level]}"
-        for first, count in self._ranges[only_level if only_level >= 0 else None]:
+        for site, (first, count) in enumerate(self._ranges[only_level if only_level >= 0 else None]):
             self.launcher.launch(transfer.p2g_kernel(self.cpic, g.sparse, only_level >= 0, self.models), count,
                                  lambda part, first, count: [*common, *private.parts[part], int(part > 0),
                                                              private.bound_parts[part]],
-                                 start=first, label=label, min_range=MIN_TRANSFER_RANGE)
+                                 start=first, label=label, min_range=MIN_TRANSFER_RANGE, site=site)
 
     def _occupied(self, g: Grid):
         # the coarse grid's occupancy in adaptive mode, else a placeholder
@@ -425,14 +425,14 @@ class MPMSolver:
                               private.mv, private.m, private.extra, private.stride, private.bounds],
                              label=f"grid update {g.name}", min_range=64)
         if private.extra > 0:
-            wp.launch(transfer.reset_reach, dim=private.extra + 1, inputs=[private.bounds], device=self.device)
+            self.launcher.launch(transfer.reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
 
     def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
         common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
-        for first, count in self._ranges[g.level]:
+        for site, (first, count) in enumerate(self._ranges[g.level]):
             self.launcher.launch(transfer.g2p_kernel(self.cpic, g.sparse, self.models), count,
                                  lambda part, first, count: [*common, signal_slots[part]], start=first,
-                                 label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE)
+                                 label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a

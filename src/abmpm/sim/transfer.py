@@ -214,9 +214,9 @@ def record_reach(g: GridSpec, slots: vec8i, base: wp.vec3i, reached: wp.array(dt
 
 
 @wp.kernel
-def reset_reach(reached: wp.array(dtype=wp.int32)):
+def reset_reach(first: int, reached: wp.array(dtype=wp.int32)):
     # after the grid update: every part's span empty again
-    t = wp.tid()
+    t = wp.tid() + first
     reached[REACH_STRIDE * t] = EMPTY_BOUND
     reached[REACH_STRIDE * t + 1] = -1
 
