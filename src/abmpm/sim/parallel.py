@@ -41,10 +41,11 @@ wp.set_module_options({"enable_backward": False})
 THREADS_ENV = "ABMPM_THREADS"
 MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 # The transfers cost 100-1000 ns a particle (an elastic stress with its SVD, a
-# collider's closest point), so 1024 particles outweigh handing a part to another
-# thread (~0.1 ms on a 2-core VM): with MIN_RANGE the level-1 range of a small
-# adaptive scene (a few thousand particles) ran on one thread.
-MIN_TRANSFER_RANGE = 1024
+# collider's closest point), so 512 particles outweigh handing a part to another
+# thread (~40 us on a 2-core VM with recorded launches): with MIN_RANGE the level-1
+# range of a small adaptive scene (a few thousand particles) ran on one thread.
+# Measured on the quick paper scenes: 1024 -> 512 gave the panel +7%, jelly +2%.
+MIN_TRANSFER_RANGE = 512
 EMPTY_BOUND = 2**31 - 1  # the low end of a private grid's reached range before any P2G
 # 4-byte words in a 64-byte cache line: per-thread slots that every particle updates
 # (P2G's reached spans, G2P's CFL signal) lie this far apart, or two threads writing
