@@ -3,6 +3,7 @@ count, the same physics as one thread, race-free P2G."""
 
 import numpy as np
 import pytest
+import warp as wp
 
 import abmpm
 from abmpm.sim.parallel import MIN_RANGE, Launcher, default_threads
@@ -154,3 +155,42 @@ def test_profile_times_every_transfer_by_phase(monkeypatch):
     assert abs(sum(r["share"] for r in rows if r["section"] == "substep" or r["kernel"] in ("(all)", "(other host work)"))
                - 1.0) < 1e-3
     assert all(r["ms_per_step"] > 0 for r in rows if r["kernel"] != "(other host work)")
+
+
+@wp.struct
+class _Target:
+    out: wp.array(dtype=float)
+
+
+@wp.kernel
+def _write_marks(first: int, target: _Target, value: float):
+    p = wp.tid() + first
+    target.out[p] = value
+
+
+def test_replayed_launches_follow_every_argument_change():
+    """The launcher replays a recorded launch while a place's arguments are the same
+    objects (sim/parallel.py). What must not be replayed stale: a struct whose field
+    now holds another array (the fine grid's block table grows that way), a new number,
+    another length, another array object. Each check fails if the replay kept the old
+    packed argument."""
+    launcher = Launcher("cpu", threads=2)
+    n = 3 * 512
+    a, b = wp.zeros(n, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu")
+    target = _Target()
+    target.out = a
+    for _ in range(2):  # recorded, then replayed
+        launcher.launch(_write_marks, n, [target, 1.0], min_range=512, label="marks")
+    assert np.all(a.numpy() == 1.0)
+    target.out = b  # same struct object and number, another array in the struct: replayed
+    launcher.launch(_write_marks, n, [target, 1.0], min_range=512, label="marks")
+    assert np.all(b.numpy() == 1.0)
+    a.zero_()
+    launcher.launch(_write_marks, n, [target, 2.0], min_range=512, label="marks")  # a new number
+    assert np.all(b.numpy() == 2.0) and np.all(a.numpy() == 0.0)
+    launcher.launch(_write_marks, n - 100, [target, 3.0], min_range=512, label="marks")  # another length
+    assert np.all(b.numpy()[: n - 100] == 3.0) and np.all(b.numpy()[n - 100:] == 2.0)
+    other = _Target()
+    other.out = a
+    launcher.launch(_write_marks, n, [other, 4.0], min_range=512, label="marks")  # another struct object
+    assert np.all(a.numpy() == 4.0)
