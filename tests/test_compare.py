@@ -10,6 +10,7 @@ import pytest
 from abmpm.cli import main
 from abmpm.compare import (
     MODES,
+    PAPER_CONTACT,
     PAPER_SCENES,
     PAPER_TABLE1,
     QUICK_OVERRIDES,
@@ -18,6 +19,7 @@ from abmpm.compare import (
     quick_scene,
     remeasure,
 )
+from abmpm.compare.core import window_figures, window_frames
 from abmpm.compare.outcomes import (
     cut_gap,
     escaped,
@@ -185,6 +187,10 @@ def test_compare_tiny_scene_writes_table_and_report(tmp_path):
         assert r["status"] == "completed"
         assert r["leaks"]["total"] == 0
         assert "mass_below_mid_height" in r["outcome"]["final"]
+        summary = json.loads((out / "tiny_cmp" / r["mode"] / "summary.json").read_text())
+        steps, clock = summary["series"]["steps"], summary["series"]["sim_seconds"]
+        assert steps[0] == 0 and steps[-1] == summary["steps"] and np.all(np.diff(steps) > 0)
+        assert clock[0] == 0.0 and np.all(np.diff(clock) > 0) and clock[-1] <= summary["sim_seconds"] + 1e-3
     orig, fine = table
     assert fine["particles_end"] == 8 * orig["particles_end"]  # b = 2: 8 times the particles
     report = (out / "report.md").read_text()
@@ -229,6 +235,46 @@ def test_paper_scene_quick_version_steps(name):
     assert np.isfinite(p.x).all() and np.isfinite(p.v).all()
 
 
+def test_window_figures_time_only_the_frames_after_contact():
+    series = {"time": [0.0, 0.1, 0.2, 0.3], "steps": [0, 10, 30, 60], "sim_seconds": [0.0, 1.0, 2.0, 5.0],
+              "count_per_level": [[10, 0], [8, 16], [6, 32], [4, 48]]}
+    w = window_figures(series, 1)
+    # frames 1..3: 50 steps in 4 s of simulation for 0.2 s of simulated time
+    assert w["steps"] == 50 and w["steps_per_second"] == 12.5
+    assert w["wall_seconds_per_sim_second"] == pytest.approx(20.0)
+    assert w["start"] == 0.1 and w["end"] == 0.3
+    assert w["particles_mean"] == pytest.approx((38 + 52) / 2) and w["particles_end"] == 52
+    assert window_figures(series, 3) is None  # nothing after the last frame
+    assert window_figures({**series, "sim_seconds": [None, None, 2.0, 5.0]}, 1) is None  # frames of an earlier run
+
+
+def test_window_frames_follow_the_contact_time():
+    fps = 30.0
+    for name, t in PAPER_CONTACT.items():
+        first, frames = window_frames(name, 0.2, fps)
+        assert (first - 1) / fps < t <= first / fps  # the first output frame at or after contact
+        assert frames - first == 6
+
+
+@pytest.mark.parametrize("name, axis, toward, barrier, speed", [
+    ("paper_panel", 2, +1, 0.305, 3.0),  # the panel's plane z, the bunny's speed along z
+    ("paper_bunny_split", 1, -1, 0.16 + 0.15, 1.0),  # the blades' top edge, falling at 1 m/s plus gravity
+])
+def test_paper_contact_times_match_the_scene_geometry(name, axis, toward, barrier, speed):
+    """PAPER_CONTACT against the sampled body: the first particle reaches the collider
+    then (to 2 ms, a tenth of the window's frame; the bodies' sampling moves their
+    extreme point by less than half a particle spacing, 0.6 ms at these speeds)."""
+    from abmpm.simulation import Simulation
+
+    sc = load_scene(name)
+    assert sc.colliders[0].center[axis] == pytest.approx(0.305 if axis == 2 else 0.16)
+    x = Simulation(with_mode(sc, "original"), device="cpu").particles().x[:, axis]
+    gap = barrier - x.max() if toward > 0 else x.min() - barrier
+    g = 0.0 if axis == 2 else 9.81
+    t = gap / speed if g == 0.0 else (-speed + np.sqrt(speed**2 + 2 * g * gap)) / g
+    assert PAPER_CONTACT[name] == pytest.approx(t, abs=2e-3)
+
+
 def test_apply_overrides_sets_list_items():
     s = apply_overrides(load_scene("paper_panel"), {"colliders.0.text": "AB", "simulation.dx": 0.02})
     assert s.colliders[0].text == "AB" and s.simulation.dx == 0.02
@@ -242,6 +288,9 @@ def test_apply_overrides_sets_list_items():
     (["compare", "paper_cut", "--modes", "coarse"], "unknown mode"),
     (["paper", "--scenes", "paper_nope"], "unknown paper scene"),
     (["compare", "paper_cut", "--set", "simulation.dx=0.1,0.2"], "one value here"),
+    (["paper", "--scenes", "paper_cut", "--window", "0"], "--window"),
+    (["paper", "--scenes", "paper_cut", "--window", "nan"], "--window"),
+    (["paper", "--scenes", "paper_cut", "--window", "0.1", "--frames", "2"], "--window and --frames"),
     (["paper", "--scenes", "paper_cut", "--set", "simulation.no_such_key=1"], "no_such_key"),
 ])
 def test_cli_errors(argv, word, capsys, tmp_path):

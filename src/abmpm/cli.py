@@ -327,7 +327,7 @@ def _cmd_compare(args) -> int:
     if args.command == "paper":
         out = Path(args.out) if args.out else Path("out") / ("paper_quick" if args.quick else "paper")
         records = run_paper(scenes=tuple(args.scenes) if args.scenes else _paper_scenes(),
-                            out=out, quick=args.quick, **common)
+                            out=out, quick=args.quick, window=args.window, **common)
     else:
         scene = load_scene(args.scene)  # unknown scene: one-line error before any run
         out = Path(args.out) if args.out else Path("out") / f"{scene.name}_compare"
@@ -529,6 +529,9 @@ def build_parser() -> argparse.ArgumentParser:
                                            "paper_bunny_split, paper_jelly) in each mode and write "
                                            "DIR/table1.json and DIR/report.md next to the paper's Table 1.")
             c.add_argument("--scenes", nargs="+", metavar="SCENE", help="which paper scenes (default: all five)")
+            c.add_argument("--window", type=float, metavar="SECONDS",
+                           help="run each scene to SECONDS of simulated time after its contact "
+                                "(abmpm.compare.PAPER_CONTACT) and time that window apart, e.g. 0.2")
         c.add_argument("--modes", nargs="+", metavar="MODE",
                        help="original, adaptive and/or finest (default: all three)")
         c.add_argument("--quick", action="store_true",

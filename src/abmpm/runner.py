@@ -111,6 +111,7 @@ def run(
         for note in notes:
             bar.print(f"[yellow]{escape(note)}[/yellow]")
         t_sim = time.perf_counter()
+        ctx.clock[int(sim.frame)] = 0.0
 
         def on_frame(s) -> None:
             nonlocal io_seconds
@@ -122,12 +123,14 @@ def run(
                 raise OutputError(f"cannot write output in {out}: {exc.strerror or exc}") from None
             io_seconds += time.perf_counter() - t0
             busy = time.perf_counter() - t_sim - io_seconds
+            ctx.clock[int(s.frame)] = round(busy, 4)
             bar.update_sim(s.frame, s.time, (s.steps - steps0) / max(busy, 1e-9))
 
         ctx.status = "completed"
         try:
             if resumed_from is None:
                 _write_frame(writers, sim, output_frame=True, first=True)
+                io_seconds += time.perf_counter() - t_sim  # writing frame 0 is output, not simulation
             bar.start_sim(sim.frame, total, sim.time)
             if sim.frame < total:
                 sim.advance(frames=total - sim.frame, callback=on_frame)

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 from abmpm.compare.core import MODES, apply_overrides, compare, measure, quick_scene, remeasure, run_paper
-from abmpm.compare.paper import PAPER_SCENES, PAPER_TABLE1, QUICK_OVERRIDES
+from abmpm.compare.paper import PAPER_CONTACT, PAPER_SCENES, PAPER_TABLE1, QUICK_OVERRIDES
 
-__all__ = ["MODES", "PAPER_SCENES", "PAPER_TABLE1", "QUICK_OVERRIDES", "apply_overrides", "compare",
+__all__ = ["MODES", "PAPER_CONTACT", "PAPER_SCENES", "PAPER_TABLE1", "QUICK_OVERRIDES", "apply_overrides", "compare",
            "measure", "quick_scene", "remeasure", "run_paper"]

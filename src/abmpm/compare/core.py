@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from abmpm.compare.outcomes import leaks, outcome_for
-from abmpm.compare.paper import PAPER_SCENES, QUICK_OVERRIDES
+from abmpm.compare.paper import PAPER_CONTACT, PAPER_SCENES, QUICK_OVERRIDES
 from abmpm.errors import AbmpmError, SimulationBlowUp
 
 MODES = ("original", "adaptive", "finest")
@@ -67,8 +68,33 @@ def _load_frames(run_dir: Path, fps: float) -> FrameSeq:
     return FrameSeq([(n / fps, load) for n, load in disk_frames(run_dir)])
 
 
-def measure(scene, run_dir: Path, summary: dict) -> dict:
-    """The record of one run: particles, speed, outcome figures and leaks."""
+def window_figures(series: dict, first_frame: int) -> dict | None:
+    """Speed and particles over the frames from ``first_frame`` to the last one (the
+    summary's per-frame ``steps`` and ``sim_seconds``); None when the run did not get
+    past ``first_frame`` or the window's clock is missing (frames of a resumed run)."""
+    times, steps, clock = (series.get(k) or [] for k in ("time", "steps", "sim_seconds"))
+    counts = series.get("count_per_level") or []
+    n = min(len(times), len(steps), len(clock), len(counts))
+    if first_frame >= n - 1 or clock[first_frame] is None or clock[n - 1] is None:
+        return None
+    seconds = clock[n - 1] - clock[first_frame]
+    taken = steps[n - 1] - steps[first_frame]
+    return {
+        "start": float(times[first_frame]),
+        "end": float(times[n - 1]),
+        "steps": int(taken),
+        "sim_seconds": round(seconds, 3),
+        "steps_per_second": round(taken / seconds, 2) if seconds > 0 else None,
+        "wall_seconds_per_sim_second": seconds / (times[n - 1] - times[first_frame]),
+        # particles at the window's frames after its first (the steps timed ran between them)
+        "particles_mean": float(np.mean([sum(c) for c in counts[first_frame + 1:n]])),
+        "particles_end": int(sum(counts[n - 1])),
+    }
+
+
+def measure(scene, run_dir: Path, summary: dict, window_from: int | None = None) -> dict:
+    """The record of one run: particles, speed, outcome figures and leaks; with
+    ``window_from`` (a frame) also ``window``, the speed from that frame on."""
     st = scene.simulation
     mode = st.refinement.mode
     series = summary.get("series") or {}
@@ -94,6 +120,8 @@ def measure(scene, run_dir: Path, summary: dict) -> dict:
         "device": summary.get("device"),
         "run_dir": str(run_dir),
     }
+    if window_from is not None:
+        rec["window"] = window_figures(series, window_from)
     if frames:
         rec["outcome"] = outcome_for(scene)(scene, frames, summary)
         rec["leaks"] = leaks(scene, frames)
@@ -121,12 +149,14 @@ def write_table(out: Path, records: list[dict]) -> Path:
 
 def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, duration: float | None = None,
             overrides: dict | None = None, quick: bool = False, device: str | None = None,
-            progress: bool = False, on_run=None) -> list[dict]:
+            progress: bool = False, on_run=None, window_from: int | None = None) -> list[dict]:
     """Run ``scene`` (a Scene, file or built-in name) in each of ``modes`` into
     ``out/<scene>/<mode>/``, measure every run, merge the records into
     ``out/table1.json`` (replacing earlier records of the same scene and mode) and write
     ``out/report.md``. ``quick`` applies :data:`QUICK_OVERRIDES`; ``overrides`` are more
-    dotted keys; ``duration`` sets ``simulation.duration``. Returns this scene's records."""
+    dotted keys; ``duration`` sets ``simulation.duration``; ``window_from`` (a frame)
+    times the frames from it on apart (:func:`window_figures`). Returns this scene's
+    records."""
     from abmpm.compare.report import scene_figures, write_report
     from abmpm.runner import run
     from abmpm.scene.loader import load_scene
@@ -153,7 +183,7 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
         except SimulationBlowUp as exc:
             summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() \
                 else {"status": "blew_up", "message": str(exc)}
-        rec = measure(sc, run_dir, summary)
+        rec = measure(sc, run_dir, summary, window_from)
         rec["quick"] = bool(quick and base.name in QUICK_OVERRIDES)
         records.append(rec)
     scene_figures(base, records, out / base.name)
@@ -187,17 +217,42 @@ def remeasure(out) -> list[dict]:
     return table
 
 
+def window_frames(name: str, window: float, fps: float) -> tuple[int, int]:
+    """``(first, frames)`` of a window of ``window`` seconds after the scene's contact
+    (:data:`PAPER_CONTACT`): the first output frame at or after contact, and the frames
+    to run so that the window follows it."""
+    if not math.isfinite(window) or window <= 0.0:
+        raise AbmpmError(f"--window must be a positive number of seconds, got {window}")
+    first = math.ceil(PAPER_CONTACT[name] * fps - 1e-9)
+    return first, first + max(1, round(window * fps))
+
+
 def run_paper(scenes=PAPER_SCENES, modes=MODES, out="out/paper", quick: bool = False, frames: int | None = None,
               overrides: dict | None = None, device: str | None = None, progress: bool = False,
-              on_run=None) -> list[dict]:
-    """:func:`compare` for each of the paper's scenes (``overrides`` apply to all)."""
+              on_run=None, window: float | None = None) -> list[dict]:
+    """:func:`compare` for each of the paper's scenes (``overrides`` apply to all).
+    ``window`` (seconds; instead of ``frames``) runs each scene to ``window`` seconds
+    after its contact time and times that window apart (``window`` in the records)."""
     scenes = tuple(scenes)
     bad = [s for s in scenes if s not in PAPER_SCENES]
     if bad or not scenes:
         raise AbmpmError(f"unknown paper scene {bad[0] if bad else '(none)'!r} (known: {', '.join(PAPER_SCENES)})")
     check_modes(modes)
+    if window is not None and frames is not None:
+        raise AbmpmError("--window and --frames: give one of them")
     records = []
     for name in scenes:
+        first = None
+        if window is not None:
+            first, frames = window_frames(name, window, _scene_fps(name, quick, overrides))
         records += compare(name, modes, out, frames=frames, overrides=overrides, quick=quick, device=device,
-                           progress=progress, on_run=on_run)
+                           progress=progress, on_run=on_run, window_from=first)
     return records
+
+
+def _scene_fps(name: str, quick: bool, overrides: dict | None) -> float:
+    from abmpm.scene.loader import load_scene
+
+    sc = load_scene(name)
+    sc = quick_scene(sc) if quick else sc
+    return apply_overrides(sc, overrides).simulation.fps if overrides else sc.simulation.fps

@@ -108,6 +108,27 @@ def _finals(final: dict) -> str:
     return "; ".join(parts) or "–"
 
 
+def _window_table(records: list[dict]) -> list[str]:
+    """The runs timed over a window after contact (``abmpm paper --window``)."""
+    timed = [r for r in records if r.get("window")]
+    if not timed:
+        return []
+    lines = ["", "## After contact", "",
+             "Steps/s and particles over the window from the first output frame at or after the scene's contact "
+             "(`abmpm.compare.PAPER_CONTACT`) to the end of the run.", "",
+             "| scene | mode | window (s) | particles mean | particles end | paper particles | steps/s "
+             "| paper steps/s | wall s per sim s |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in timed:
+        w = r["window"]
+        paper = PAPER_TABLE1.get(r["scene"], {})
+        lines.append(
+            f"| {r['scene']} | {r['mode']} | {w['start']:.3f}-{w['end']:.3f} | {_num(w.get('particles_mean'), ',.0f')} "
+            f"| {_num(w.get('particles_end'), ',')} | {_num(paper.get('particles', {}).get(r['mode']), ',')} "
+            f"| {_num(w.get('steps_per_second'), '.2f')} | {_num(paper.get('steps_per_second', {}).get(r['mode']), '.1f')} "
+            f"| {_num(w.get('wall_seconds_per_sim_second'), '.0f')} |")
+    return lines
+
+
 def render_report(out: Path, records: list[dict]) -> str:
     scenes = list(dict.fromkeys(r["scene"] for r in records))
     lines = ["# Mode comparison (after the paper's Table 1)", ""]
@@ -130,6 +151,7 @@ def render_report(out: Path, records: list[dict]) -> str:
             f"| {_num(ps, '.1f')} | {_num(r.get('wall_seconds_per_sim_second'), '.0f')} | {_num(leaked, 'd')} "
             f"| {r.get('status')} |"
         )
+    lines += _window_table(records)
     for name in scenes:
         recs = [r for r in records if r["scene"] == name]
         paper = PAPER_TABLE1.get(name)

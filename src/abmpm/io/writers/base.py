@@ -119,6 +119,7 @@ class RunContext:
     summary: dict = field(default_factory=dict)
     outputs: dict[str, str] = field(default_factory=dict)  # name -> path in out, for summary.json
     render_seconds: float = 0.0  # writers that render (preview, USD) add their time
+    clock: dict[int, float] = field(default_factory=dict)  # frame -> simulation seconds of this run at its end
     frames: FrameStore = field(init=False)
 
     def __post_init__(self) -> None:

@@ -11,12 +11,19 @@ from abmpm.io.outdir import ENERGY_FILE, SCENE_FILE, SUMMARY_FILE, numbered_outp
 from abmpm.io.summary import write_json
 from abmpm.io.writers.base import RunContext, Writer
 
-SERIES = ("time", "kinetic_energy", "potential_energy", "total_mass", "momentum", "max_speed", "count_per_level")
+SERIES = ("time", "steps", "kinetic_energy", "potential_energy", "total_mass", "momentum", "max_speed",
+          "count_per_level")
 
 
-def series(history: list[dict]) -> dict[str, list]:
-    """The per-frame diagnostics as one list per quantity."""
-    return {k: [h.get(k) for h in history] for k in SERIES}
+def series(history: list[dict], clock: dict[int, float] | None = None) -> dict[str, list]:
+    """The per-frame diagnostics as one list per quantity. ``clock`` (frame -> seconds
+    of simulation since this run began, output excluded) adds ``sim_seconds``: None
+    for frames of an earlier run (before a resume), so that a window of frames can be
+    timed (``abmpm paper --window``)."""
+    out = {k: [h.get(k) for h in history] for k in SERIES}
+    if clock is not None:
+        out["sim_seconds"] = [clock.get(int(h["frame"])) for h in history]
+    return out
 
 
 def versions() -> dict[str, str]:
@@ -63,7 +70,7 @@ def make_summary(
         "wall_seconds": None,
         "versions": versions(),
         "outputs": {},
-        "series": series(sim.history),
+        "series": series(sim.history, run.clock),
     }
 
 
