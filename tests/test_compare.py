@@ -275,6 +275,21 @@ def test_paper_contact_times_match_the_scene_geometry(name, axis, toward, barrie
     assert PAPER_CONTACT[name] == pytest.approx(t, abs=2e-3)
 
 
+def test_adaptive_against_finest_figures():
+    from abmpm.compare.report import adaptive_against_finest, paper_against_finest
+
+    a = {"steps_per_second": 40.0, "particles_mean": 10_000, "wall_seconds_per_sim_second": 30.0}
+    f = {"steps_per_second": 20.0, "particles_mean": 40_000, "wall_seconds_per_sim_second": 60.0}
+    got = adaptive_against_finest(a, f)
+    # twice the steps/s with a quarter of the particles: an adaptive particle-step costs twice a finest one
+    assert got["score"] == pytest.approx(0.5) and got["wall"] == pytest.approx(0.5)
+    assert adaptive_against_finest({**a, "steps_per_second": None}, f)["score"] is None
+    # Table 1 of the paper (GTX 1650): panel 2.7 / 2.4 steps/s with 71k / 141k particles,
+    # hourglass 3.0 / 1.7 with 167k / 304k
+    assert paper_against_finest("paper_panel")["score"] == pytest.approx(2.7 / 2.4 * 71 / 141)
+    assert paper_against_finest("paper_hourglass")["wall"] == pytest.approx(1.7 / 3.0)
+
+
 def test_apply_overrides_sets_list_items():
     s = apply_overrides(load_scene("paper_panel"), {"colliders.0.text": "AB", "simulation.dx": 0.02})
     assert s.colliders[0].text == "AB" and s.simulation.dx == 0.02

@@ -108,6 +108,55 @@ def _finals(final: dict) -> str:
     return "; ".join(parts) or "–"
 
 
+def adaptive_against_finest(adaptive: dict, finest: dict) -> dict:
+    """The method's pay-off from two records (or two ``window`` dicts) of one scene:
+    ``score`` = (adaptive steps/s / finest steps/s) / (finest particles / adaptive
+    particles), 1 when an adaptive particle-step costs what a finest one does;
+    ``wall`` = adaptive / finest wall seconds per simulated second (a whole run's
+    counts its frames written; a window's is simulation only). None where a figure is
+    missing."""
+    sa, sf = adaptive.get("steps_per_second"), finest.get("steps_per_second")
+    pa, pf = adaptive.get("particles_mean"), finest.get("particles_mean")
+    score = (sa / sf) * (pa / pf) if sa and sf and pa and pf else None
+    wa, wf = adaptive.get("wall_seconds_per_sim_second"), finest.get("wall_seconds_per_sim_second")
+    return {"score": score, "wall": wa / wf if wa and wf else None}
+
+
+def paper_against_finest(name: str) -> dict:
+    """The same figures from the paper's Table 1 (it gives steps/s, not wall time: with
+    the same time step in both modes, finest steps/s / adaptive steps/s is the wall
+    time ratio)."""
+    row = PAPER_TABLE1[name]
+    sa, sf = row["steps_per_second"]["adaptive"], row["steps_per_second"]["finest"]
+    pa, pf = row["particles"]["adaptive"], row["particles"]["finest"]
+    return {"score": (sa / sf) * (pa / pf), "wall": sf / sa}
+
+
+def _goals_table(records: list[dict]) -> list[str]:
+    """Score and wall-time ratio of adaptive against finest per scene, ours beside the
+    paper's (issue goals: score >= 0.8, wall <= 0.5)."""
+    rows = []
+    for name in dict.fromkeys(r["scene"] for r in records):
+        by_mode = {r["mode"]: r for r in records if r["scene"] == name}
+        if "adaptive" not in by_mode or "finest" not in by_mode:
+            continue
+        whole = adaptive_against_finest(by_mode["adaptive"], by_mode["finest"])
+        wa, wf = by_mode["adaptive"].get("window"), by_mode["finest"].get("window")
+        after = adaptive_against_finest(wa, wf) if wa and wf else {"score": None, "wall": None}
+        paper = paper_against_finest(name) if name in PAPER_TABLE1 else {"score": None, "wall": None}
+        rows.append(f"| {name} | {_num(whole['score'], '.2f')} | {_num(whole['wall'], '.2f')} "
+                    f"| {_num(after['score'], '.2f')} | {_num(after['wall'], '.2f')} "
+                    f"| {_num(paper['score'], '.2f')} | {_num(paper['wall'], '.2f')} |")
+    if not rows:
+        return []
+    return ["", "## Adaptive against finest", "",
+            "score = (adaptive steps/s / finest steps/s) x (adaptive particles / finest particles): 1 when an "
+            "adaptive particle-step costs what a finest one does. wall = adaptive / finest wall seconds per "
+            "simulated second (the whole run with its output; after contact, simulation only). The paper's from its Table 1 (finest / adaptive steps/s as its wall ratio).", "",
+            "| scene | score, whole run | wall, whole run | score, after contact | wall, after contact "
+            "| paper's score | paper's wall |", "|---|---|---|---|---|---|---|", *rows]
+
+
 def _window_table(records: list[dict]) -> list[str]:
     """The runs timed over a window after contact (``abmpm paper --window``)."""
     timed = [r for r in records if r.get("window")]
@@ -152,6 +201,7 @@ def render_report(out: Path, records: list[dict]) -> str:
             f"| {r.get('status')} |"
         )
     lines += _window_table(records)
+    lines += _goals_table(records)
     for name in scenes:
         recs = [r for r in records if r["scene"] == name]
         paper = PAPER_TABLE1.get(name)
