@@ -403,7 +403,8 @@ class MPMSolver:
         store = len(self.grids) > 1 and not g.sparse
         # each CPU thread scatters into its own accumulators, which the grid update adds up
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
+        common = [s.arrays(), self._cmask, self.materials, g.spec, self.collider_arrays, g.color, self._dt, self._tau,
+                  int(store),
                   only_level, overlap, self._occupied(g)]
         label = f"P2G {g.name}{_P2G_PASS[only_level]}"
         for site, (first, count) in enumerate(self._ranges[only_level if only_level >= 0 else None]):

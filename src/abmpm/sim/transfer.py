@@ -104,6 +104,7 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, .
         cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
+        colliders: ColliderArrays,
         color: ColorField,
         dt_now: wp.array(dtype=float),  # [dt]: on the device, so a captured graph replays any dt
         tau_store: wp.array(dtype=wp.mat33),
@@ -162,6 +163,17 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, .
                 mask = compatibility_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color, g, base, fx)
                 if s.level[p] == g.level:
                     cmask[p] = mask  # G2P from this grid reuses it
+            elif wp.static(overlap_pass):
+                if s.level[p] > g.level:
+                    # A level-1 particle's color reaches PARTICLE_BAND fine cells, but its
+                    # stencil on this coarser grid (Eq. 8) reaches up to 2.6 coarse cells:
+                    # beyond its own band it may still have coarse nodes behind a surface.
+                    # It takes its color on this grid's scale here, or it would push the
+                    # material on the far side of a thin wall.
+                    if near_surface(color, g, xp):
+                        c = color_point(colliders, g, xp, PARTICLE_BAND * g.dx, wp.vec3(0.0))
+                        if c.body >= 0:
+                            mask = compatibility_mask(c.surface_point, c.surface_side, c.body, xp, color, g, base, fx)
         slots = vec8i()
         if wp.static(sparse):
             slots = stencil_slots(g, base)
