@@ -44,6 +44,7 @@ NODE_BAND = 3.5  # cells: nodes this close to a surface get a color (stencil rea
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
 CONTACT_BAND = 1.0  # cells: nodes this close get the collider's boundary condition
 FAR = 1.0e10
+NODE_RANGE = 512  # nodes worth a thread of their own when coloring (a query each)
 # cells: closer than this a point is on the surface; its direction from the closest
 # point is float32 noise, so the face normal stands in for it
 ON_SURFACE = 1.0e-3
@@ -124,6 +125,32 @@ def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_bo
             for k in range(3):
                 xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
                 if compatible(surface_point, surface_side, surface_body, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
+                    mask = mask | (1 << (9 * i + 3 * j + k))
+    return mask
+
+
+@wp.func
+def nodes_facing(xp: wp.vec3, f: ColorField, g: GridSpec, base: wp.vec3i, fx: wp.vec3):
+    """Compatibility mask of a particle with no color of its own on this grid's scale:
+    node i stays compatible unless x_p lies behind node i's tangent plane,
+    ``(x_p - c_i) . n_i < 0``, or node i is on a surface. Only the node's half of the
+    test of ``compatible`` (the particle's half needs its closest point): it separates
+    every pair the full test separates, and some more near rims and concave corners,
+    so it is the safe side for a particle that only lends its momentum (dense grid)."""
+    mask = int(0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                ok = True
+                if f.body[n] >= 0:
+                    if f.dist[n] < ON_NODE * g.dx:
+                        ok = False
+                    else:
+                        xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                        # c_i = x_i - d_i n_i, so (x_p - c_i) . n_i = (x_p - x_i) . n_i + d_i
+                        ok = wp.dot(xp - xi, f.dir[n]) + f.dist[n] >= 0.0
+                if ok:
                     mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
@@ -282,15 +309,15 @@ def color_node(colliders: ColliderArrays, g: GridSpec, f: ColorField, n: int, c:
 
 
 @wp.kernel
-def color_node_box(colliders: ColliderArrays, g: GridSpec, lo: wp.vec3i, f: ColorField):
-    # dense grid: the nodes of an index box
-    a, b, c = wp.tid()
-    node = wp.vec3i(lo[0] + a, lo[1] + b, lo[2] + c)
+def color_node_box(first: int, colliders: ColliderArrays, g: GridSpec, lo: wp.vec3i, shape: wp.vec3i, f: ColorField):
+    # dense grid: the nodes of an index box, numbered along z, then y, then x
+    t = first + wp.tid()
+    node = wp.vec3i(lo[0] + t // (shape[1] * shape[2]), lo[1] + (t // shape[2]) % shape[1], lo[2] + t % shape[2])
     color_node(colliders, g, f, node_index(g, node[0], node[1], node[2]), node)
 
 
 @wp.kernel
-def color_node_range(colliders: ColliderArrays, g: GridSpec, first: int, f: ColorField):
+def color_node_range(first: int, colliders: ColliderArrays, g: GridSpec, f: ColorField):
     # sparse grid: a range of storage indices (whole blocks)
     n = first + wp.tid()
     color_node(colliders, g, f, n, node_coords(g, n))
@@ -424,26 +451,29 @@ class ColliderSet:
         dims = np.array(grid.dims)
         return np.clip(lo, 0, dims), np.clip(hi, 0, dims)
 
-    def color(self, grid: Grid, first_slot: int = 0) -> None:
+    def color(self, grid: Grid, launcher, first_slot: int = 0) -> None:
         """(Re)build the color distance field of a grid around the colliders: on a
         dense grid the node box around them (and what they covered before they
-        moved), on a sparse grid the active blocks from ``first_slot`` on."""
+        moved), on a sparse grid the active blocks from ``first_slot`` on. A node
+        costs a closest-point query (~1 us on a CPU core), so ``launcher`` (the
+        solver's :class:`~abmpm.sim.parallel.Launcher`) shares them out over its
+        threads: a moving collider rebuilds the field before every substep."""
         if grid.sparse:
             count = (grid.active_slots - first_slot) * BLOCK_NODES
-            if count > 0:
-                wp.launch(color_node_range, dim=count, inputs=[self.arrays, grid.spec, first_slot * BLOCK_NODES],
-                          outputs=[grid.color], device=self.device)
+            launcher.launch(color_node_range, count, [self.arrays, grid.spec, grid.color],
+                            start=first_slot * BLOCK_NODES, label=f"color {grid.name}", min_range=NODE_RANGE)
             return
         lo, hi = self.node_box(grid)
         prev = self._region.get(id(grid))
         if prev is not None:
             lo, hi = np.minimum(prev[0], lo), np.maximum(prev[1], hi)
         self._region[id(grid)] = (lo, hi)
-        shape = tuple(int(s) for s in hi - lo)
+        shape = [int(s) for s in hi - lo]
         if min(shape) <= 0:
             return
-        wp.launch(color_node_box, dim=shape, inputs=[self.arrays, grid.spec, wp.vec3i(*[int(a) for a in lo])],
-                  outputs=[grid.color], device=self.device)
+        launcher.launch(color_node_box, shape[0] * shape[1] * shape[2],
+                        [self.arrays, grid.spec, wp.vec3i(*[int(a) for a in lo]), wp.vec3i(*shape), grid.color],
+                        label=f"color {grid.name}", min_range=NODE_RANGE)
 
 
 def empty_colliders(device) -> ColliderArrays:

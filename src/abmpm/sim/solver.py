@@ -116,7 +116,7 @@ class MPMSolver:
         for g in self.grids:
             g.color = color_field(g.capacity if colliders is not None else 1, device)
             if colliders is not None and not g.sparse:
-                colliders.color(g)
+                colliders.color(g, self.launcher)
         self._next_id = 0  # id of the next particle a split creates
         self._first_split_id = None  # ids from here on were made by splits (set by the first reserve_ids)
         self._steps = 0
@@ -403,8 +403,7 @@ class MPMSolver:
         store = len(self.grids) > 1 and not g.sparse
         # each CPU thread scatters into its own accumulators, which the grid update adds up
         private = self.launcher.private_grids(g.level, g.mv, g.m)
-        common = [s.arrays(), self._cmask, self.materials, g.spec, self.collider_arrays, g.color, self._dt, self._tau,
-                  int(store),
+        common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
                   only_level, overlap, self._occupied(g)]
         label = f"P2G {g.name}{_P2G_PASS[only_level]}"
         for site, (first, count) in enumerate(self._ranges[only_level if only_level >= 0 else None]):
@@ -456,7 +455,7 @@ class MPMSolver:
         c.set_time(time)
         self.collider_arrays = c.arrays
         for g in self.grids:
-            c.color(g)
+            c.color(g, self.launcher)
 
     def color_particles(self, state: ParticleState, min_id: int = -1) -> None:
         """CPIC color of every particle (of those with an id from ``min_id`` on) from
@@ -493,7 +492,7 @@ class MPMSolver:
         fine = self.grids[1]
         if self.colliders is not None:
             fine.color = grow_color_field(fine.color, fine.capacity)
-            self.colliders.color(fine, first_slot)
+            self.colliders.color(fine, self.launcher, first_slot)
 
     # ------------------------------------------------------------------ sorting
 

@@ -29,6 +29,7 @@ from .colliders import (
     near_surface,
     node_bit,
     node_contact,
+    nodes_facing,
     rigid_velocity,
     stop_crossing,
 )
@@ -104,7 +105,6 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, .
         cmask: wp.array(dtype=wp.int32),
         materials: wp.array(dtype=MaterialParams),
         g: GridSpec,
-        colliders: ColliderArrays,
         color: ColorField,
         dt_now: wp.array(dtype=float),  # [dt]: on the device, so a captured graph replays any dt
         tau_store: wp.array(dtype=wp.mat33),
@@ -167,13 +167,13 @@ def _make_p2g(cpic: bool, sparse: bool, overlap_pass: bool, models: tuple[int, .
                 if s.level[p] > g.level:
                     # A level-1 particle's color reaches PARTICLE_BAND fine cells, but its
                     # stencil on this coarser grid (Eq. 8) reaches up to 2.6 coarse cells:
-                    # beyond its own band it may still have coarse nodes behind a surface.
-                    # It takes its color on this grid's scale here, or it would push the
-                    # material on the far side of a thin wall.
+                    # beyond its own band it may still have coarse nodes behind a surface,
+                    # and would push the material on their far side of a thin wall. The
+                    # nodes' own colors tell which (no closest-point query needed). A
+                    # node behind a surface is at most 1.5 sqrt(3) = 2.6 cells away, so
+                    # particles farther than that from every surface skip the test.
                     if near_surface(color, g, xp):
-                        c = color_point(colliders, g, xp, PARTICLE_BAND * g.dx, wp.vec3(0.0))
-                        if c.body >= 0:
-                            mask = compatibility_mask(c.surface_point, c.surface_side, c.body, xp, color, g, base, fx)
+                        mask = nodes_facing(xp, color, g, base, fx)
         slots = vec8i()
         if wp.static(sparse):
             slots = stencil_slots(g, base)
