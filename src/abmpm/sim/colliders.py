@@ -38,7 +38,16 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 from .boundary import BOUNDARY_IDS, boundary_response
-from .grid import BLOCK_NODES, Grid, GridSpec, nearest_node_coords, node_coords, node_index, node_position
+from .grid import (
+    BLOCK_NODES,
+    Grid,
+    GridSpec,
+    dense_node_index,
+    nearest_node_coords,
+    node_coords,
+    node_index,
+    node_position,
+)
 
 NODE_BAND = 3.5  # cells: nodes this close to a surface get a color (stencil reach 1.5 sqrt(3) ~ 2.6)
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
@@ -136,12 +145,13 @@ def nodes_facing(xp: wp.vec3, f: ColorField, g: GridSpec, base: wp.vec3i, fx: wp
     ``(x_p - c_i) . n_i < 0``, or node i is on a surface. Only the node's half of the
     test of ``compatible`` (the particle's half needs its closest point): it separates
     every pair the full test separates, and some more near rims and concave corners,
-    so it is the safe side for a particle that only lends its momentum (dense grid)."""
+    so it is the safe side for a particle that only lends its momentum (dense grid
+    only: the coarse grid of the overlap P2G)."""
     mask = int(0)
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                n = dense_node_index(g, base[0] + i, base[1] + j, base[2] + k)
                 ok = True
                 if f.body[n] >= 0:
                     if f.dist[n] < ON_NODE * g.dx:
