@@ -251,7 +251,7 @@ def test_window_figures_time_only_the_frames_after_contact():
 def test_window_frames_follow_the_contact_time():
     fps = 30.0
     for name, t in PAPER_CONTACT.items():
-        first, frames = window_frames(name, 0.2, fps)
+        first, frames = window_frames(t, 0.2, fps)
         assert (first - 1) / fps < t <= first / fps  # the first output frame at or after contact
         assert frames - first == 6
 

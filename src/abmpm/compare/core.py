@@ -149,14 +149,15 @@ def write_table(out: Path, records: list[dict]) -> Path:
 
 def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, duration: float | None = None,
             overrides: dict | None = None, quick: bool = False, device: str | None = None,
-            progress: bool = False, on_run=None, window_from: int | None = None) -> list[dict]:
+            progress: bool = False, on_run=None, window: tuple[float, float] | None = None) -> list[dict]:
     """Run ``scene`` (a Scene, file or built-in name) in each of ``modes`` into
     ``out/<scene>/<mode>/``, measure every run, merge the records into
     ``out/table1.json`` (replacing earlier records of the same scene and mode) and write
     ``out/report.md``. ``quick`` applies :data:`QUICK_OVERRIDES`; ``overrides`` are more
-    dotted keys; ``duration`` sets ``simulation.duration``; ``window_from`` (a frame)
-    times the frames from it on apart (:func:`window_figures`). Returns this scene's
-    records."""
+    dotted keys; ``duration`` sets ``simulation.duration``; ``window`` = (contact
+    time, seconds) runs to that long after contact instead of ``frames`` and times the
+    frames from contact on apart (:func:`window_frames`, :func:`window_figures`).
+    Returns this scene's records."""
     from abmpm.compare.report import scene_figures, write_report
     from abmpm.runner import run
     from abmpm.scene.loader import load_scene
@@ -171,6 +172,9 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
         extra["simulation.duration"] = duration
     if extra:
         base = apply_overrides(base, extra)
+    window_from = None
+    if window is not None:
+        window_from, frames = window_frames(*window, base.simulation.fps)
     out = Path(out)
     records = []
     for i, mode in enumerate(modes):
@@ -217,13 +221,17 @@ def remeasure(out) -> list[dict]:
     return table
 
 
-def window_frames(name: str, window: float, fps: float) -> tuple[int, int]:
-    """``(first, frames)`` of a window of ``window`` seconds after the scene's contact
-    (:data:`PAPER_CONTACT`): the first output frame at or after contact, and the frames
-    to run so that the window follows it."""
+def check_window(window: float) -> None:
     if not math.isfinite(window) or window <= 0.0:
         raise AbmpmError(f"--window must be a positive number of seconds, got {window}")
-    first = math.ceil(PAPER_CONTACT[name] * fps - 1e-9)
+
+
+def window_frames(contact: float, window: float, fps: float) -> tuple[int, int]:
+    """``(first, frames)`` of a window of ``window`` seconds after ``contact`` (a time,
+    e.g. the scene's :data:`PAPER_CONTACT`): the first output frame at or after
+    contact, and the frames to run so that the window follows it."""
+    check_window(window)
+    first = math.ceil(contact * fps - 1e-9)
     return first, first + max(1, round(window * fps))
 
 
@@ -238,21 +246,13 @@ def run_paper(scenes=PAPER_SCENES, modes=MODES, out="out/paper", quick: bool = F
     if bad or not scenes:
         raise AbmpmError(f"unknown paper scene {bad[0] if bad else '(none)'!r} (known: {', '.join(PAPER_SCENES)})")
     check_modes(modes)
-    if window is not None and frames is not None:
-        raise AbmpmError("--window and --frames: give one of them")
+    if window is not None:
+        if frames is not None:
+            raise AbmpmError("--window and --frames: give one of them")
+        check_window(window)  # before anything runs
     records = []
     for name in scenes:
-        first = None
-        if window is not None:
-            first, frames = window_frames(name, window, _scene_fps(name, quick, overrides))
         records += compare(name, modes, out, frames=frames, overrides=overrides, quick=quick, device=device,
-                           progress=progress, on_run=on_run, window_from=first)
+                           progress=progress, on_run=on_run,
+                           window=None if window is None else (PAPER_CONTACT[name], window))
     return records
-
-
-def _scene_fps(name: str, quick: bool, overrides: dict | None) -> float:
-    from abmpm.scene.loader import load_scene
-
-    sc = load_scene(name)
-    sc = quick_scene(sc) if quick else sc
-    return apply_overrides(sc, overrides).simulation.fps if overrides else sc.simulation.fps

@@ -103,6 +103,15 @@ def rigid_velocity(b: ColliderBody, x: wp.vec3):
 
 
 @wp.func
+def behind_node(f: ColorField, n: int, xi: wp.vec3, xp: wp.vec3):
+    """The node's half of the separation test: x_p lies behind the tangent plane of
+    colored node n at xi, (x_p - c_i) . n_i < 0."""
+    ni = f.dir[n]
+    ci = xi - f.dist[n] * ni
+    return wp.dot(xp - ci, ni) < 0.0
+
+
+@wp.func
 def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, xi: wp.vec3, n: int, dx: float):
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
     if surface_body < 0 or n < 0:
@@ -111,9 +120,7 @@ def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int,
         return True  # node far from every surface
     if f.dist[n] < ON_NODE * dx:
         return False  # a node on a surface belongs to neither side
-    ni = f.dir[n]
-    ci = xi - f.dist[n] * ni
-    return not (wp.dot(xi - surface_point, surface_side) < 0.0 and wp.dot(xp - ci, ni) < 0.0)
+    return not (wp.dot(xi - surface_point, surface_side) < 0.0 and behind_node(f, n, xi, xp))
 
 
 ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
@@ -141,9 +148,9 @@ def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_bo
 @wp.func
 def nodes_facing(xp: wp.vec3, f: ColorField, g: GridSpec, base: wp.vec3i, fx: wp.vec3):
     """Compatibility mask of a particle with no color of its own on this grid's scale:
-    node i stays compatible unless x_p lies behind node i's tangent plane,
-    ``(x_p - c_i) . n_i < 0``, or node i is on a surface. Only the node's half of the
-    test of ``compatible`` (the particle's half needs its closest point): it separates
+    node i stays compatible unless x_p lies behind node i's tangent plane
+    (``behind_node``) or node i is on a surface. Only the node's half of the test of
+    ``compatible`` (the particle's half needs its closest point): it separates
     every pair the full test separates, and some more near rims and concave corners,
     so it is the safe side for a particle that only lends its momentum (dense grid
     only: the coarse grid of the overlap P2G)."""
@@ -158,8 +165,7 @@ def nodes_facing(xp: wp.vec3, f: ColorField, g: GridSpec, base: wp.vec3i, fx: wp
                         ok = False
                     else:
                         xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                        # c_i = x_i - d_i n_i, so (x_p - c_i) . n_i = (x_p - x_i) . n_i + d_i
-                        ok = wp.dot(xp - xi, f.dir[n]) + f.dist[n] >= 0.0
+                        ok = not behind_node(f, n, xi, xp)
                 if ok:
                     mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
