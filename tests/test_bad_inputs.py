@@ -572,8 +572,8 @@ def test_non_finite_initial_state_is_refused(in_tmp, capsys, monkeypatch):
 
     real = simulation.sample_scene
 
-    def poisoned(scene):
-        arrays = real(scene)
+    def poisoned(scene, *args):
+        arrays = real(scene, *args)
         arrays["v"][0] = np.nan
         return arrays
 

@@ -243,6 +243,10 @@ def run_watched(spec, body, gravity, side_of, seconds=SECONDS, mode="original", 
     if side_of is not None:
         start[p.id] = side_of(p.x)
         assert len(np.unique(start[p.id])) == 1  # all start on one side (also any children split at t = 0)
+        # a family split at t = 0 that merges back takes its parent's id: its side too
+        kids = p.family >= 0
+        start[p.family[kids]] = start[p.id[kids]]
+        x_old[p.family[kids]] = p.x[kids]
     worst, steps, split = 0, 0, 0
     while sim.time < seconds - 1e-9:
         sim.step()

@@ -294,3 +294,30 @@ def test_reconstruct_false_is_the_plain_split(sphere):
     parents, plain, _ = sphere
     again = split(parents, sm.Fluid(name="m"), False)
     assert all(np.array_equal(again[k], plain[k]) for k in plain)
+
+
+def test_walls_and_floor_are_not_a_free_surface():
+    # Water filling a corner of the domain (resting on the floor, against two walls):
+    # reconstruction acts at the free surface only. Families against a wall or the
+    # floor keep the plain split's places exactly: the wall bounds the material, there
+    # is nothing to reconstruct (the mass field is mirrored across the wall). Before,
+    # they were moved by up to 0.8 h.
+    settings = sm.SimulationSettings(dx=DX)
+    body = sm.BoxBody(material="m", min=(0.0, 0.0, 0.0), max=(0.4, 0.4, 0.4))
+    x = sample_body(body, settings, np.random.default_rng(3))
+    parents = parents_of(x, 1000.0, v=np.zeros((len(x), 3)), C=np.zeros((len(x), 3, 3)))
+    water = sm.Fluid(name="m")
+    plain, recon = split(parents, water, False), split(parents, water, True)
+    moved = np.linalg.norm(recon["x"] - plain["x"], axis=1)
+    xc = plain["x"]
+    # children whose family lies within a coarse cell of a wall and two coarse cells
+    # (beyond the surface test's reach) from the free faces at 0.4
+    fam = recon["family"]
+    px = parents["x"][fam]
+    at_wall = (px.min(axis=1) < DX) & (px.max(axis=1) < 0.4 - 2 * DX)
+    assert at_wall.sum() > 100
+    assert moved[at_wall].max() == 0.0, moved[at_wall].max() / H
+    # the free faces still are reconstructed (the test can tell moved from unmoved)
+    top = px[:, 1] > 0.4 - H
+    assert moved[top].max() > 0.0
+    assert np.isfinite(xc).all()

@@ -84,13 +84,24 @@ def skew(w) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
-def sample_scene(scene: Scene) -> dict[str, np.ndarray]:
-    """Particles of every body, as numpy arrays (deterministic by the scene's seed)."""
+# Sampling jitter, in lattice spacings (geometry.sampling.jitter_points).
+JITTER = 0.5
+
+
+def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:
+    """Particles of every body, as numpy arrays (deterministic by the scene's seed).
+
+    ``split_factor`` b > 1: the particles may be split into b^3 children (adaptive
+    mode with something to refine). Their jitter is then that of the fine lattice,
+    JITTER * h / b, in absolute terms: a family inherits its parent's offset, so
+    with the coarse jitter two neighbouring families would overlap or leave a gap
+    of up to b/2 child spacings, where finest mode's particles are off by at most
+    1/4 of one (docs/method.md, "Split")."""
     st = scene.simulation
     rng = np.random.default_rng(st.seed)
     parts = []
     for i, body in enumerate(scene.bodies):
-        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]")
+        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]", jitter=JITTER / split_factor)
         n = len(x)
         mat = scene.materials[scene.material_index(body.material)]
         vol = particle_volume(st.dx, body.particles_per_cell)

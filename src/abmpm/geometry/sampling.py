@@ -263,13 +263,16 @@ def sample_body(
     rng: np.random.Generator,
     resolve: Callable = lambda p: p,
     where: str = "bodies[0]",
+    jitter: float = 0.5,
 ) -> np.ndarray:
     """Particle positions (N, 3, float32) filling ``body``.
 
     ``settings`` supplies ``dx``, ``domain_min`` and ``domain_max``; ``resolve`` maps a
     mesh file path from the scene to a real path (``Scene.resolve``); ``where`` names
     the body in error messages. Each particle stands for ``particle_volume(dx, ppc)``.
-    The same ``rng`` state gives identical output.
+    The same ``rng`` state gives identical output; ``jitter`` scales the jitter
+    (``jitter_points``) and not the random stream, so the count and the draws do not
+    depend on it.
     """
     lo, hi, inside = shape_bounds_and_inside(body, resolve, where)
     _check_in_domain(lo, hi, settings, where)
@@ -281,4 +284,4 @@ def sample_body(
     kept = base[inside(base)] if len(base) else base
     if len(kept) == 0:
         raise SceneError(f"{where}: body is smaller than the particle spacing; no particles sampled")
-    return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng).astype(np.float32)
+    return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng, jitter).astype(np.float32)
