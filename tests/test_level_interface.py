@@ -9,6 +9,7 @@ import pytest
 import abmpm
 from abmpm.geometry.sampling import lattice_spacing
 from abmpm.inputs import JITTER, sample_scene
+from abmpm.scene import model as sm
 
 RHO, G, K = 1000.0, 9.81, 4.0e4  # water at rest: density, gravity, a soft bulk modulus
 W, DEPTH, Z = 0.8, 0.25, 0.2  # the tank; its right half is a refinement box
@@ -80,3 +81,43 @@ def test_tank_at_rest_across_the_level_interface():
     v_fine = np.linalg.norm(fine.v, axis=1).max()
     v_ada = np.linalg.norm(ada.v, axis=1).max()
     assert v_ada < 1.5 * v_fine, (v_ada, v_fine)
+
+
+def plate_with_slit(mode, slit_cells, b, dx=0.04):
+    """Water falling 0.04 m onto a zero-thickness plate that spans the box; its only
+    way down is a slit ``slit_cells`` coarse cells wide across the box (the case the
+    audit found adaptive mode passing half of finest's mass through)."""
+    W, Z, yp = 0.4, 0.16, 0.2
+    half = (W - slit_cells * dx) / 2
+    plates = [sm.SheetCollider(size=(half, Z + 0.1), center=(c, yp, Z / 2))
+              for c in (half / 2, W - half / 2)]
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(domain_max=(W, 0.5, Z), dx=dx, fps=10, max_dt=2e-3,
+                                            walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
+        materials=[abmpm.Fluid(name="water", bulk_modulus=2e4)],
+        bodies=[abmpm.BoxBody(material="water", min=(0, 0.24, 0), max=(W, 0.44, Z))], colliders=plates)
+    return scene, yp
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("slit_cells", [0.5, 1.0])
+def test_slit_outside_the_paper_drains_like_finest(slit_cells):
+    # A regression guard of the matrix in docs/method.md ("The level interface
+    # against finest"), the cases that run in seconds: b = 2, default refinement
+    # (feature criterion, reconstruction, merge), 0.5 s.
+    out = {}
+    for mode in ("adaptive", "finest"):
+        scene, yp = plate_with_slit(mode, slit_cells, 2)
+        sim = abmpm.Simulation(scene, device="cpu")
+        p = sim.particles()
+        M = p.mass.astype(np.float64).sum()
+        sim.advance(seconds=0.5)
+        p = sim.particles()
+        out[mode] = (p.mass[p.x[:, 1] < yp].astype(np.float64).sum() / M, sim.steps)
+    (a, steps_a), (f, steps_f) = out["adaptive"], out["finest"]
+    assert f > 0.01  # the case is what it says: water does go through
+    # the issue's bound: the outcome within 10% of finest (measured 0.93 and 0.96)
+    assert abs(a - f) < 0.10 * f, out
+    # Steps: the issue's goal is 5% above finest, not reached on every case yet
+    # (measured 1.18 and 0.94): 1.25 guards against a compressed band coming back.
+    assert steps_a < 1.25 * steps_f, out
