@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..sim.parallel import THREADS_ENV, default_threads
+from .interface import run_interface_suite
 
 # (particles, grid cells per side) of the fluid benchmark
 FLUID_CASES = {"cpu": [(100_000, 64), (400_000, 128)], "cuda": [(100_000, 64), (400_000, 128), (1_000_000, 128)]}
@@ -256,7 +257,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--reference", type=Path, default=None, help="path to mls_mpm_minimal_warp.py")
     ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
-    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "all"], default="all")
+    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "all"], default="all",
+                    help="all: fluid, adaptive and colliders; interface (not in all, ~5 min on 2 cores): "
+                         "adaptive against finest on slits outside the paper and a tank at rest")
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
@@ -326,10 +329,11 @@ def run_bench(argv: list[str] | None = None) -> dict:
     if args.suite in ("colliders", "all"):
         colliders = time_collider_overhead(device, args.seconds)
         print(f"collider overhead: {colliders}", flush=True)
+    interface = run_interface_suite(device) if args.suite == "interface" else {}
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
-        "adaptive": adaptive, "colliders": colliders,
+        "adaptive": adaptive, "colliders": colliders, "interface": interface,
     }
     if args.json:
         from ..io.summary import write_json

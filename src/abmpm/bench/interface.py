@@ -1,0 +1,116 @@
+"""The level-interface matrix: adaptive against finest on cases outside the paper's
+scenes (``abmpm bench --suite interface``; docs/method.md, "The level interface
+against finest"). Each case runs in original, adaptive and finest mode with the
+scene's defaults (feature criterion, reconstruction, merge) and reports the outcome
+ratio adaptive / finest, the steps ratio and the wall-time ratio. The fast cases run
+in the test suite (``tests/test_level_interface.py``) with the same scene builders.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..scene import model as sm
+
+# (slit width in coarse cells, refinement factor b)
+SLITS = [(0.5, 2), (1.0, 2), (0.75, 3), (1.0, 3), (1.5, 3), (0.75, 4)]
+MODES = ("original", "adaptive", "finest")
+
+# the tank at rest: water density, gravity, a soft bulk modulus; tank size (m)
+RHO, G, K = 1000.0, 9.81, 4.0e4
+TANK_W, TANK_DEPTH, TANK_Z = 0.8, 0.25, 0.2
+
+
+def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04) -> tuple[sm.Scene, float]:
+    """Water falling 0.04 m onto a zero-thickness plate that spans the box; its only
+    way down is a slit ``slit_cells`` coarse cells wide across the box. Returns the
+    scene and the plate's height."""
+    W, Z, yp = 0.4, 0.16, 0.2
+    half = (W - slit_cells * dx) / 2
+    plates = [sm.SheetCollider(size=(half, Z + 0.1), center=(c, yp, Z / 2)) for c in (half / 2, W - half / 2)]
+    scene = sm.Scene(
+        simulation=sm.SimulationSettings(domain_max=(W, 0.5, Z), dx=dx, fps=10, max_dt=2e-3,
+                                         walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
+        materials=[sm.Fluid(name="water", bulk_modulus=2e4)],
+        bodies=[sm.BoxBody(material="water", min=(0, 0.24, 0), max=(W, 0.44, Z))], colliders=plates)
+    return scene, yp
+
+
+def tank_at_rest(mode: str, dx: float = 0.05, b: int = 2) -> sm.Scene:
+    """A tank of water whose right half is a refinement box: the level interface runs
+    through the water. Start it with ``hydrostatic_J`` for a state at rest."""
+    return sm.Scene(
+        simulation=sm.SimulationSettings(
+            domain_max=(TANK_W, 0.4, TANK_Z), dx=dx, fps=20, walls={"type": "slip"},
+            refinement={"mode": mode, "factor": b, "boxes": [((TANK_W / 2, 0.0, 0.0), (TANK_W, 0.4, TANK_Z))]}),
+        materials=[sm.Fluid(name="water", density=RHO, bulk_modulus=K)],
+        bodies=[sm.BoxBody(material="water", min=(0, 0, 0), max=(TANK_W, TANK_DEPTH, TANK_Z))])
+
+
+def hydrostatic_J(y: np.ndarray) -> np.ndarray:
+    """J at height y in the tank at rest: Tait with gamma = 7, p = K/7 (J^-7 - 1) = rho g depth."""
+    return (1.0 + 7.0 * RHO * G * np.clip(TANK_DEPTH - y, 0.0, None) / K) ** (-1.0 / 7.0)
+
+
+def mass_below(sim, y: float) -> float:
+    p = sim.particles()
+    return float(p.mass[p.x[:, 1] < y].astype(np.float64).sum() / p.mass.astype(np.float64).sum())
+
+
+def run_slit(slit_cells: float, b: int, seconds: float, device: str) -> dict:
+    """Mass through, steps and wall seconds of one slit case in every mode."""
+    from ..simulation import Simulation
+
+    out = {}
+    for mode in MODES:
+        scene, yp = plate_with_slit(mode, slit_cells, b)
+        sim = Simulation(scene, device=device)
+        sim.advance(frames=1)  # kernels compiled, the first frame's split done: not timed
+        steps, t0 = sim.steps, time.perf_counter()
+        sim.advance(seconds=seconds - sim.time)
+        out[mode] = {"through": round(mass_below(sim, yp), 5), "steps": sim.steps,
+                     "wall_s": round(time.perf_counter() - t0, 2), "timed_steps": sim.steps - steps,
+                     "particles": sim.particle_count}
+    a, f = out["adaptive"], out["finest"]
+    out["through_ratio"] = round(a["through"] / f["through"], 3) if f["through"] > 0 else None
+    out["steps_ratio"] = round(a["steps"] / f["steps"], 3)
+    out["wall_ratio"] = round(a["wall_s"] / f["wall_s"], 3)
+    return out
+
+
+def run_tank(seconds: float, device: str) -> dict:
+    """The tank at rest after ``seconds``: the spread of J - J_hydrostatic (1st to 99th
+    percentile, away from the surface and the floor) of the level-1 particles against
+    finest's, and the fastest particle against finest's."""
+    from ..simulation import Simulation
+
+    dx = 0.05
+    res = {}
+    for mode in ("adaptive", "finest"):
+        sim = Simulation(tank_at_rest(mode, dx), device=device)
+        sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
+        sim.advance(seconds=seconds)
+        p = sim.particles()
+        inner = (p.level == 1) & (p.x[:, 1] < TANK_DEPTH - 2 * dx) & (p.x[:, 1] > 2 * dx)
+        d = p.J[inner] - hydrostatic_J(p.x[inner, 1])
+        res[mode] = {"J_spread": float(np.percentile(d, 99) - np.percentile(d, 1)),
+                     "fastest": float(np.linalg.norm(p.v, axis=1).max())}
+    return {**res, "J_spread_ratio": round(res["adaptive"]["J_spread"] / res["finest"]["J_spread"], 3),
+            "fastest_ratio": round(res["adaptive"]["fastest"] / res["finest"]["fastest"], 3)}
+
+
+def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
+    """Every case of the matrix, printed as it finishes; returns the results."""
+    results = {}
+    for slit, b in SLITS:
+        r = results[f"slit {slit} cells, b = {b}"] = run_slit(slit, b, seconds, device)
+        print(f"slit {slit:4} coarse cells, b = {b}: mass through original {r['original']['through']:.4f}  "
+              f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
+              f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
+              f"(goal <= 1.05), wall {r['wall_ratio']}x", flush=True)
+    r = results["tank at rest"] = run_tank(0.3, device)
+    print(f"tank at rest, interface through the water: level-1 J spread {r['J_spread_ratio']}x finest's, "
+          f"fastest particle {r['fastest_ratio']}x finest's", flush=True)
+    return results
