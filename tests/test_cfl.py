@@ -105,11 +105,13 @@ def test_extreme_impacts_complete_or_stop_cleanly(tmp_path, speed, separation):
 def test_collider_scene_in_warp_debug_mode(tmp_path):
     """Warp's debug build checks every array index: a few steps of an adaptive scene
     with a turned-over sheet hit at 15 m/s (P2G/G2P with CPIC on both grids, the split,
-    block activation, color fields) must not index outside any array."""
+    block activation, color fields) must not index outside any array. Two threads: the
+    launcher's parts, private grids and reach spans are checked too (run one after the
+    other, since Warp's debug build is not re-entrant: tests/test_parallel.py)."""
     text = impact_scene(15.0, duration=0.01).replace(
         "[[materials]]", '[simulation.refinement]\nmode = "adaptive"\n\n[[materials]]'
     ).replace("fps = 20", "fps = 100")
-    proc, out = run_cli(tmp_path, text, env={"ABMPM_WARP_DEBUG": "1"})
+    proc, out = run_cli(tmp_path, text, env={"ABMPM_WARP_DEBUG": "1", "ABMPM_THREADS": "2"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["steps"] > 10

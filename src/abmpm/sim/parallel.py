@@ -116,6 +116,12 @@ class Launcher:
         self._warm: set = set()  # kernels (a generic one: with its argument types) launched once already
         self._recorded: dict = {}  # (kernel, (label, site), part) -> (count, arguments, recorded launch)
         self.serial = False  # run the parts one after the other on this thread (graph capture)
+        # Warp's debug build (every array access bounds-checked) is not re-entrant: a
+        # trivial kernel launched from two Python threads at once dies with SIGSEGV,
+        # with no abmpm code involved (tests/test_parallel.py). Under it the parts, with
+        # their private grids and reach spans, run one after the other on this thread:
+        # the threaded path is still bounds-checked, only not concurrently.
+        self.one_at_a_time = wp.config.mode == "debug"
         self.profile: KernelProfile | None = None  # attach one to time every launch
 
     @contextmanager
@@ -175,7 +181,7 @@ class Launcher:
         # compiles or specialises it: that must not happen on two threads at once.
         key = (kernel, tuple(a.dtype if isinstance(a, wp.array) else type(a) for a in args[0])) \
             if kernel.is_generic else kernel
-        if len(parts) == 1 or key not in self._warm or self.serial:
+        if len(parts) == 1 or key not in self._warm or self.serial or self.one_at_a_time:
             self._warm.add(key)
             for part in range(len(parts)):
                 run(part)
