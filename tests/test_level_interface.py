@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from abmpm.bench.interface import run_slit, run_tank, tank_at_rest
-from abmpm.geometry.sampling import lattice_spacing
-from abmpm.inputs import JITTER, sample_scene
+from abmpm.geometry.sampling import JITTER, lattice_spacing
+from abmpm.inputs import sample_scene
 
 
 def test_adaptive_parents_have_the_fine_lattice_jitter():

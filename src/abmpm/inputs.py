@@ -18,7 +18,7 @@ from .geometry.motion import KinematicMotion
 from .geometry.meshes import limit_edge_length
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
-from .geometry.sampling import particle_volume, sample_body
+from .geometry.sampling import JITTER, particle_volume, sample_body
 from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.colliders import RigidBody
@@ -82,10 +82,6 @@ def region_params(scene: Scene) -> RegionParams:
 def skew(w) -> np.ndarray:
     """Matrix of the cross product w x (.)"""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-# Sampling jitter, in lattice spacings (geometry.sampling.jitter_points).
-JITTER = 0.5
 
 
 def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from ..compare.outcomes import mass_beyond_plane
 from ..scene import model as sm
 
 # (slit width in coarse cells, refinement factor b)
@@ -54,11 +55,6 @@ def hydrostatic_J(y: np.ndarray) -> np.ndarray:
     return (1.0 + 7.0 * RHO * G * np.clip(TANK_DEPTH - y, 0.0, None) / K) ** (-1.0 / 7.0)
 
 
-def mass_below(sim, y: float) -> float:
-    p = sim.particles()
-    return float(p.mass[p.x[:, 1] < y].astype(np.float64).sum() / p.mass.astype(np.float64).sum())
-
-
 def run_slit(slit_cells: float, b: int, seconds: float, device: str) -> dict:
     """Mass through, steps and wall seconds of one slit case in every mode."""
     from ..simulation import Simulation
@@ -70,7 +66,9 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str) -> dict:
         sim.advance(frames=1)  # kernels compiled, the first frame's split done: not timed
         steps, t0 = sim.steps, time.perf_counter()
         sim.advance(seconds=seconds - sim.time)
-        out[mode] = {"through": round(mass_below(sim, yp), 5), "steps": sim.steps,
+        p = sim.particles()
+        out[mode] = {"through": round(mass_beyond_plane(p.x, p.mass, (0.0, yp, 0.0), (0.0, -1.0, 0.0)), 5),
+                     "steps": sim.steps,
                      "wall_s": round(time.perf_counter() - t0, 2), "timed_steps": sim.steps - steps,
                      "particles": sim.particle_count}
     a, f = out["adaptive"], out["finest"]

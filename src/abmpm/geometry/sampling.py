@@ -72,7 +72,10 @@ def lattice_points(lo, hi, dx: float, ppc: int, domain_min) -> np.ndarray:
     return np.stack([g.ravel() for g in grid], axis=1)
 
 
-def jitter_points(points: np.ndarray, h: float, rng: np.random.Generator, jitter: float = 0.5) -> np.ndarray:
+JITTER = 0.5  # default sampling jitter, in lattice spacings: up to +-JITTER * h / 2 per axis
+
+
+def jitter_points(points: np.ndarray, h: float, rng: np.random.Generator, jitter: float = JITTER) -> np.ndarray:
     """Move each point uniformly by up to ``±jitter * h / 2`` per axis.
 
     With ``jitter <= 1`` a point never leaves its own lattice cube, so jittered
@@ -83,7 +86,7 @@ def jitter_points(points: np.ndarray, h: float, rng: np.random.Generator, jitter
     return points + rng.uniform(-1.0, 1.0, size=points.shape) * (0.5 * jitter * h)
 
 
-def lattice(lo, hi, dx: float, ppc: int, domain_min, rng: np.random.Generator, jitter: float = 0.5) -> np.ndarray:
+def lattice(lo, hi, dx: float, ppc: int, domain_min, rng: np.random.Generator, jitter: float = JITTER) -> np.ndarray:
     """Jittered sub-lattice points in ``[lo, hi]`` (float64, (N, 3)).
 
     The lattice has spacing ``h = dx / round(ppc ** (1/3))`` and is aligned to the
@@ -263,7 +266,7 @@ def sample_body(
     rng: np.random.Generator,
     resolve: Callable = lambda p: p,
     where: str = "bodies[0]",
-    jitter: float = 0.5,
+    jitter: float = JITTER,
 ) -> np.ndarray:
     """Particle positions (N, 3, float32) filling ``body``.
 
