@@ -17,6 +17,9 @@ from abmpm.errors import OutputError
 from abmpm.scene.model import Scene
 
 __all__ = [
+    "BEAUTY_FILE",
+    "BEAUTY_POSTER_FILE",
+    "BLEND_FILE",
     "CHECKPOINTS_DIR",
     "COLLIDERS_DIR",
     "ENERGY_FILE",
@@ -50,6 +53,9 @@ ENERGY_FILE = "energy.png"
 PREVIEW_FILE = "preview.mp4"
 POSTER_FILE = "preview.png"
 USD_FILE = "particles.usd"
+BEAUTY_FILE = "beauty.mp4"  # output.beauty / abmpm render --beauty: path-traced surfaces
+BEAUTY_POSTER_FILE = "beauty.png"
+BLEND_FILE = "abmpm.blend"  # abmpm blender: the run as a Blender scene
 
 FRAME_RE = re.compile(r"^frame_(\d+)\.ply$")
 COLLIDER_RE = re.compile(r"^collider_(\d+)\.ply$")
@@ -133,7 +139,8 @@ def clean_previous_run(out: Path) -> None:
     victims += [p for _, p in numbered(out / COLLIDERS_DIR, COLLIDER_RE)]
     victims += [p for _, p in numbered(out / CHECKPOINTS_DIR, CHECKPOINT_RE)]
     victims += [p for _, p in numbered(out / SURFACES_DIR, SURFACE_RE)]
-    victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE, REGION_FILE)]
+    victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE, REGION_FILE,
+                                BEAUTY_FILE, BEAUTY_POSTER_FILE)]
     for p in victims:
         try:
             p.unlink(missing_ok=True)

@@ -66,9 +66,9 @@ class Progress:
                 self._sim_task, completed=frame, info=f"t = {t:.3f} s  {steps_per_s:,.0f} steps/s"
             )
 
-    def start_render(self, total: int) -> None:
+    def start_render(self, total: int, label: str = "rendering preview") -> None:
         if self._progress is not None:
-            self._render_task = self._progress.add_task("rendering preview", total=total, info="")
+            self._render_task = self._progress.add_task(label, total=total, info="")
 
     def advance_render(self) -> None:
         if self._progress is not None and self._render_task is not None:

@@ -40,6 +40,7 @@ __all__ = [
     "ColliderTrack",
     "disk_frames",
     "frame_image",
+    "internal_kinetic_energy",
     "material_densities",
     "particle_colors",
     "render_folder",
@@ -151,7 +152,7 @@ def speed_vmax(source: FrameSource) -> float:
     return vmax if vmax > 0 else 1.0
 
 
-def _internal_kinetic_energy(frame: dict) -> float:
+def internal_kinetic_energy(frame: dict) -> float:
     """Kinetic energy of the motion relative to the centre of mass (-1 if not finite)."""
     m = frame["mass"].astype(np.float64)
     v = frame["v"].astype(np.float64)
@@ -205,7 +206,7 @@ def render_preview(
         for n, load in source:
             f = load()
             img = frame_image(scene, f, camera, vmax, lines)
-            ke = _internal_kinetic_energy(f)
+            ke = internal_kinetic_energy(f)
             # poster: the frame with the most motion relative to the centre of mass, so
             # that a body thrown or dropped as a whole shows its impact, not its flight
             # (last frame if nothing moves)

@@ -461,6 +461,8 @@ class Output(_Strict):
     usd: bool = False
     surface: bool = Field(False, description="write surfaces/surface_NNNNN_<material>.ply (needs pysplashsurf)")
     surface_mesh: SurfaceMeshOptions = SurfaceMeshOptions()
+    beauty: bool = Field(False, description="path-trace beauty.mp4 / beauty.png of the surfaces at the end (needs mitsuba)")
+    beauty_colliders: Literal["metal", "glass"] = Field("metal", description="the colliders' look in the beauty pass")
 
 
 # --------------------------------------------------------------------------- scene
