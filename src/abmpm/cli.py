@@ -3,7 +3,8 @@
     abmpm run SCENE [--out DIR] [--device cpu|cuda] [--frames N] [--resume] [--no-preview] [--view]
     abmpm scenes                 built-in scenes
     abmpm info                   versions and devices
-    abmpm render DIR             re-render the preview of a finished run
+    abmpm render DIR [--beauty]  re-render the preview of a finished run (--beauty: path-traced, Mitsuba)
+    abmpm blender DIR            the run as an animated Blender scene (DIR/abmpm.blend)
     abmpm view DIR [--port N]    browse a run's frames in the web browser (viser)
     abmpm sweep SCENE --set KEY=V1,V2,...   a run per combination of values (a wedge)
     abmpm surface DIR            surface meshes of a finished run
@@ -25,6 +26,7 @@ import os
 import sys
 from pathlib import Path
 
+from abmpm.cli_post import add_parsers as add_post_parsers
 from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
 
 EXIT_OK = 0
@@ -137,7 +139,8 @@ def _print_summary(s: dict, out: Path) -> None:
         + f" on {_esc(s['device'])} in {s['wall_seconds']:.1f} s"
     )
     outputs = s.get("outputs", {})
-    for key in ("preview", "poster", "energy_plot", "frames", "colliders", "checkpoints", "surfaces", "usd", "summary"):
+    for key in ("preview", "poster", "beauty", "beauty_poster", "energy_plot", "frames", "colliders", "checkpoints",
+                "surfaces", "usd", "summary"):
         if key in outputs:
             con.print(f"  {key:<12} {_esc(out / outputs[key])}")
 
@@ -197,17 +200,6 @@ def _cmd_info(args) -> int:
         import importlib.util
 
         con.print(f"{label:<15} {'installed' if importlib.util.find_spec(mod) else 'not installed'}")
-    return EXIT_OK
-
-
-def _cmd_render(args) -> int:
-    from abmpm.runner import render_folder
-
-    info = render_folder(args.dir, progress=not args.quiet)
-    if not args.quiet:
-        _stdout().print(
-            f"[green]rendered[/green] {info['frames']} frames -> {_esc(info['preview'])}, {_esc(info['poster'])}"
-        )
     return EXIT_OK
 
 
@@ -477,10 +469,7 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="versions and available devices")
     i.set_defaults(func=_cmd_info)
 
-    d = sub.add_parser("render", help="re-render the preview of a run from its frames")
-    d.add_argument("dir", metavar="DIR", help="output folder of a run")
-    d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    d.set_defaults(func=_cmd_render)
+    add_post_parsers(sub)  # render (preview or --beauty), blender
 
     v = sub.add_parser("view", help="browse a run's frames in the web browser (needs viser)")
     v.add_argument("dir", metavar="DIR", help="output folder of a run")

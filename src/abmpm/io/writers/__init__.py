@@ -13,6 +13,7 @@ section asks for. A new kind of output is a module here with a
 from __future__ import annotations
 
 from abmpm.io.writers.base import FrameData, FrameStore, RunContext, Writer
+from abmpm.io.writers.beauty import BeautyWriter
 from abmpm.io.writers.checkpoints import CheckpointWriter
 from abmpm.io.writers.colliders import ColliderMeshWriter
 from abmpm.io.writers.frames import ParticleFrameWriter
@@ -34,6 +35,7 @@ WRITERS: dict[str, type[Writer]] = {
     "energy": EnergyPlotWriter,  # energy.png
     "region": RegionWriter,  # region.npz
     "preview": PreviewWriter,  # preview.mp4, preview.png
+    "beauty": BeautyWriter,  # beauty.mp4, beauty.png (path-traced surfaces, after the surface writer)
     "usd": UsdWriter,  # particles.usd
     "summary": SummaryWriter,  # summary.json
     "view": ViewerWriter,  # abmpm run --view: live browser view (last: may serve on after the run)
@@ -50,6 +52,7 @@ def writer_names(output: Output, preview: bool = True, view: bool = False) -> li
         "preview": output.preview and preview,
         "usd": output.usd,
         "surface": output.surface,
+        "beauty": output.beauty,
         "view": view,
     }
     return [name for name in WRITERS if wanted.get(name, True)]
