@@ -27,7 +27,9 @@ def test_layout_agrees_with_outdir():
 
 
 def test_missing_bpy_is_one_line(tmp_path, monkeypatch, capsys):
-    (tmp_path / "scene.json").write_text("{}")
+    (tmp_path / "scene.json").write_text('{"simulation": {"fps": 30}}')
+    (tmp_path / "frames").mkdir()
+    (tmp_path / "frames" / "frame_00000.ply").write_bytes(b"")
     monkeypatch.setitem(sys.modules, "bpy", None)
     assert main(["blender", str(tmp_path)]) == 2
     assert capsys.readouterr().err.strip() == 'error: abmpm blender needs Blender as a Python module: pip install -e ".[blender]"'

@@ -23,8 +23,8 @@ __all__ = ["add_parsers"]
 BEAUTY_HELP = (
     "path-trace beauty.mp4 and beauty.png of the run's surface meshes and colliders with Mitsuba 3 "
     "(pip install -e \".[render]\"; meshes the surfaces first when the run has none). Slow on a CPU: "
-    "the defaults (640x360, 16 spp) take about 2.5 s a frame on 2 cores, 2 minutes for the "
-    "letter_panel demo; the GPU variant is used where a CUDA GPU works"
+    "the defaults (640x360, 16 spp) take about 5 s a frame on one CPU core (4 minutes for the 46 frames "
+    "of the letter_panel demo, about half that on 2 cores); the CUDA variant is used where a GPU works"
 )
 
 

@@ -262,13 +262,13 @@ def build_scene(bpy, run_dir) -> dict:
 def write_blend(run_dir, output=None) -> dict:
     """``abmpm blender``: build the run in an empty Blender file and save it
     (default ``RUN_DIR/abmpm.blend``); returns :func:`build_scene`'s dict and ``blend``."""
+    run_dir = Path(run_dir)
+    target = Path(output) if output else run_dir / BLEND_FILE
+    read_run(run_dir)  # a bad folder is refused before Blender is loaded
     try:
         import bpy
     except ImportError:
         raise OutputError(INSTALL_HINT) from None
-    run_dir = Path(run_dir)
-    target = Path(output) if output else run_dir / BLEND_FILE
-    read_run(run_dir)  # a bad folder is refused before Blender is reset
     bpy.ops.wm.read_factory_settings(use_empty=True)
     info = build_scene(bpy, run_dir)
     target.parent.mkdir(parents=True, exist_ok=True)
