@@ -16,7 +16,7 @@ from __future__ import annotations
 __all__ = ["COLLIDER_LOOKS", "LOOKS", "MODEL_LOOK", "VISCOUS", "collider_look", "material_look"]
 
 # kind: dielectric (clear, refracting), translucent (rough dielectric), diffuse,
-# metal (anisotropic rough conductor: brushed), thin_glass (a zero-thickness pane).
+# metal (rough conductor: brushed, satin), thin_glass (a zero-thickness pane).
 # color: linear RGB (tint of the transmitted light for dielectrics).
 LOOKS: dict[str, dict] = {
     "water": {"kind": "dielectric", "color": (0.80, 0.92, 1.0), "ior": 1.33, "roughness": 0.0},
@@ -24,7 +24,7 @@ LOOKS: dict[str, dict] = {
     "jelly": {"kind": "translucent", "color": (0.98, 0.42, 0.52), "ior": 1.40, "roughness": 0.18},
     "sand": {"kind": "diffuse", "color": (0.72, 0.58, 0.38), "roughness": 1.0},
     "snow": {"kind": "diffuse", "color": (0.90, 0.92, 0.96), "roughness": 0.9},
-    "metal": {"kind": "metal", "color": (0.62, 0.64, 0.67), "roughness": 0.3},
+    "metal": {"kind": "metal", "color": (0.62, 0.64, 0.67), "roughness": 0.2},
     "glass": {"kind": "thin_glass", "color": (0.95, 0.97, 1.0), "ior": 1.5, "roughness": 0.0},
     "ground": {"kind": "diffuse", "color": (0.45, 0.46, 0.48), "roughness": 1.0},
 }

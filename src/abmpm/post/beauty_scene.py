@@ -44,9 +44,9 @@ def bsdf(look: str) -> dict:
     if kind == "translucent":
         return {"type": "roughdielectric", "distribution": "ggx", "alpha": rough, "int_ior": d["ior"],
                 "ext_ior": 1.0, "specular_transmittance": _rgb(color)}
-    if kind == "metal":  # brushed: rougher across the brush direction than along it
-        metal = {"type": "roughconductor", "material": "Al", "distribution": "ggx", "alpha_u": 0.35 * rough,
-                 "alpha_v": rough, "specular_reflectance": _rgb(color)}
+    if kind == "metal":  # satin, isotropic: brushing (anisotropy) would follow UVs the meshes do not have
+        metal = {"type": "roughconductor", "material": "Al", "distribution": "ggx", "alpha": rough,
+                 "specular_reflectance": _rgb(color)}
         return {"type": "twosided", "bsdf": metal}  # sheets are seen from both sides
     if kind == "thin_glass":
         return {"type": "thindielectric", "int_ior": d["ior"], "ext_ior": 1.0, "specular_transmittance": _rgb(color)}
