@@ -5,7 +5,7 @@ A *look* is a small renderer-neutral description (``kind`` and a few parameters)
 :mod:`abmpm.io.blender` into Blender's Principled BSDF. The material model of a
 scene picks the look: fluids are a clear dielectric (water; a viscous fluid a tinted
 goo), elastic and viscoelastic solids a rough translucent jelly, sand and snow
-diffuse; colliders are brushed metal, or glass (``[output] beauty_colliders``).
+diffuse; colliders are metal, or glass (``[output] beauty_colliders``).
 
 This module uses the standard library only: the Blender script loads it inside
 Blender, where abmpm is not installed.
