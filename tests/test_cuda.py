@@ -30,7 +30,7 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 
 
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
-KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.reconstruct",
+KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.collider_set", "abmpm.sim.reconstruct",
                   "abmpm.sim.refine", "abmpm.sim.sorting"]
 # Turing (T4, RTX 20xx), Ampere (RTX 30xx, A10), Hopper (H100); the transfers'
 # compile-time variants are modules of their own, compiled one by one below

@@ -21,62 +21,45 @@ are printed literally (``[`` in a path is not rich markup).
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
 import os
+import platform
 import sys
 from pathlib import Path
 
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+import abmpm
+from abmpm.compare import PAPER_SCENES, compare, run_paper
 from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
+from abmpm.io.writers.surface import surface_folder
+from abmpm.io.writers.viewer import ViewOptions
+from abmpm.post.viewer import Viewer
+from abmpm.runner import render_folder, run
+from abmpm.runtime import init_warp_silently
+from abmpm.scene.loader import list_builtin_scenes, load_scene
+from abmpm.scene.model import with_mode
+from abmpm.sweep import feasible_on, import_ray, parse_set, plan_sweep, run_sweep
 
 EXIT_OK = 0
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
-def _quiet_warp() -> None:
-    """Keep Warp's start-up and module-load chatter off the terminal."""
-    if os.environ.get("ABMPM_VERBOSE"):
-        return
-    try:
-        import warp as wp
-    except ImportError:  # pragma: no cover
-        return
-    level = getattr(wp, "LOG_WARNING", None)
-    if level is not None and hasattr(wp.config, "log_level"):
-        wp.config.log_level = max(wp.config.log_level, level)
-    wp.config.quiet = True  # older Warp versions
-    # Warp's native code prints "could not load the CUDA driver" on every start on a
-    # machine without a GPU; `abmpm info` says the same thing in plain words.
-    from abmpm.simulation import init_warp
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            try:
-                init_warp()
-            finally:
-                os.dup2(saved, 2)
-    finally:
-        os.close(saved)
-
-
 def _stdout():
-    from rich.console import Console
-
     return Console(highlight=False)
 
 
 def _esc(text) -> str:
     """User text (paths, names, messages) printed through rich: '[' is not markup."""
-    from rich.markup import escape
-
     return escape(str(text))
 
 
 def _stderr():
-    from rich.console import Console
-
     return Console(stderr=True, highlight=False)
 
 
@@ -88,10 +71,6 @@ def _threads_arg(text: str) -> int:
 
 
 def _cmd_run(args) -> int:
-    from abmpm.runner import run
-    from abmpm.scene.loader import load_scene
-    from abmpm.scene.model import with_mode
-
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)  # read by the solver's launcher
 
@@ -143,10 +122,6 @@ def _print_summary(s: dict, out: Path) -> None:
 
 
 def _cmd_scenes(args) -> int:
-    from rich.table import Table
-
-    from abmpm.scene.loader import list_builtin_scenes, load_scene
-
     table = Table(title="built-in scenes (abmpm run NAME)")
     table.add_column("name", style="cyan", no_wrap=True)
     table.add_column("materials")
@@ -164,12 +139,6 @@ def _cmd_scenes(args) -> int:
 
 
 def _cmd_info(args) -> int:
-    import platform
-
-    import numpy as np
-
-    import abmpm
-
     con = _stdout()
     con.print(f"abmpm   {getattr(abmpm, '__version__', '?')}")
     con.print(f"python  {platform.python_version()} ({_esc(sys.executable)})")
@@ -194,15 +163,11 @@ def _cmd_info(args) -> int:
     except Exception as exc:  # info must work even when Warp is broken
         con.print(f"warp    unavailable ({type(exc).__name__}: {_esc(exc)})")
     for mod, label in (("pxr", "usd-core"), ("imageio_ffmpeg", "imageio-ffmpeg")):
-        import importlib.util
-
         con.print(f"{label:<15} {'installed' if importlib.util.find_spec(mod) else 'not installed'}")
     return EXIT_OK
 
 
 def _cmd_render(args) -> int:
-    from abmpm.runner import render_folder
-
     info = render_folder(args.dir, progress=not args.quiet)
     if not args.quiet:
         _stdout().print(
@@ -215,14 +180,11 @@ def _view_options(args):
     """abmpm run --view: the live view, served on after the run until Ctrl-C."""
     if not args.view:
         return None
-    from abmpm.io.writers.viewer import ViewOptions
 
     return ViewOptions(port=args.view_port, keep_open=True)
 
 
 def _cmd_view(args) -> int:
-    from abmpm.post.viewer import Viewer
-
     viewer = Viewer(args.dir, host=args.host, port=args.port)
     try:
         _stdout().print(f"viewing {_esc(args.dir)} at [bold]{_esc(viewer.url)}[/bold] (Ctrl-C to stop)")
@@ -235,8 +197,6 @@ def _cmd_view(args) -> int:
 
 
 def _cmd_surface(args) -> int:
-    from abmpm.post.surface import surface_folder
-
     info = surface_folder(args.dir)
     if not args.quiet:
         usd = ", particles.usd rewritten with them" if info["usd"] else ""
@@ -248,8 +208,6 @@ def _cmd_surface(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from abmpm.sweep import feasible_on, import_ray, parse_set, plan_sweep, run_sweep
-
     if args.ray:
         import_ray()  # "--ray needs ray" before anything else
     values = parse_set(args.set)
@@ -302,9 +260,6 @@ def _cmd_sweep(args) -> int:
 
 def _cmd_compare(args) -> int:
     """``abmpm compare SCENE`` and ``abmpm paper``: the modes of a scene side by side."""
-    from abmpm.compare import compare, run_paper
-    from abmpm.scene.loader import load_scene
-
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)
     modes = tuple(args.modes or ("original", "adaptive", "finest"))
@@ -316,8 +271,6 @@ def _cmd_compare(args) -> int:
 
     overrides = {}
     if args.set:
-        from abmpm.sweep import parse_set
-
         for key, values in parse_set(args.set).items():
             if len(values) != 1:
                 raise AbmpmError(f"--set {key}: one value here (abmpm sweep runs several)")
@@ -348,14 +301,10 @@ def _cmd_compare(args) -> int:
 
 
 def _paper_scenes() -> tuple:
-    from abmpm.compare import PAPER_SCENES
-
     return PAPER_SCENES
 
 
 def _print_sweep_table(rows: list[dict], out: Path) -> None:
-    from rich.table import Table
-
     def num(v, fmt):
         return "" if v is None else format(v, fmt)
 
@@ -384,8 +333,6 @@ def _print_sweep_table(rows: list[dict], out: Path) -> None:
 
 
 def _cmd_bench(args) -> int:
-    import importlib
-
     missing = False
     try:
         run_bench = importlib.import_module("abmpm.bench").run_bench
@@ -563,7 +510,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
-    _quiet_warp()
+    init_warp_silently()
     try:
         return args.func(args)
     except AbmpmError as exc:

@@ -39,17 +39,13 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from . import collider_set as collider_host
 from . import colliders as collider_kernels
 from . import grid_update as node_pass_kernels
 from . import parallel, reconstruct, refine, sorting
 from .boundary import FACES
-from .colliders import (
-    ColliderSet,
-    color_field,
-    color_particles,
-    empty_colliders,
-    grow_color_field,
-)
+from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_field
+from .colliders import color_particles
 from .g2p import g2p_kernel
 from .grid import Grid
 from .grid_update import CPU_NODE_CHUNK, grid_update
@@ -192,7 +188,7 @@ class MPMSolver:
             return
         modules = [node_pass_kernels, parallel, sorting]
         if self.colliders is not None:
-            modules.append(collider_kernels)
+            modules += [collider_kernels, collider_host]
         if self.refiner is not None:
             modules += [refine, reconstruct]
         for module in modules:
