@@ -345,7 +345,7 @@ def test_solver_colliders_give_exact_closest_points_next_to_a_letter_panel():
     from abmpm.compare.outcomes import _panel_material
     from abmpm.inputs import MAX_COLLIDER_EDGE_CELLS, rigid_bodies
     from abmpm.scene.loader import load_scene
-    from abmpm.sim.colliders import ColliderSet
+    from abmpm.sim.collider_set import ColliderSet
 
     scene = load_scene("paper_panel")
     dx = scene.simulation.dx

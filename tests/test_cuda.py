@@ -30,8 +30,8 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 
 
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
-KERNEL_MODULES = ["abmpm.sim.transfer", "abmpm.sim.colliders", "abmpm.sim.reconstruct", "abmpm.sim.refine",
-                  "abmpm.sim.solver"]
+KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.collider_set", "abmpm.sim.reconstruct",
+                  "abmpm.sim.refine", "abmpm.sim.sorting"]
 # Turing (T4, RTX 20xx), Ampere (RTX 30xx, A10), Hopper (H100); the transfers'
 # compile-time variants are modules of their own, compiled one by one below
 ARCHS = [75, 86, 90]
@@ -60,19 +60,20 @@ def test_kernels_compile_for_cuda_without_a_gpu():
             paths = wp.compile_aot_module(name, arch=arch)  # into the kernel cache: reruns are quick
             assert paths and all(p.is_file() and p.stat().st_size > 0 for p in paths), (name, arch)
     # The transfers are compiled per variant and per set of material models, each
-    # kernel in a module of its own (sim/transfer.py, sim/materials dispatch): every
-    # variant for every model at once, and every model alone in the variant with the
-    # most code (CPIC, block-sparse grid).
-    from abmpm.sim import transfer
+    # kernel in a module of its own (sim/p2g.py, sim/g2p.py, sim/variant.py): every
+    # pass with and without CPIC for every model at once, and every model alone in the
+    # passes with the most code (CPIC, block-sparse grid).
+    from abmpm.sim.g2p import g2p_kernel
     from abmpm.sim.materials import ALL_MODELS
+    from abmpm.sim.p2g import PASSES, p2g_kernel
 
     # The single-model kernels are the same code with branches removed: compiled for
     # the oldest architecture only, to keep this test's NVRTC time in bounds.
-    kernels = [(k, ARCHS) for k in [transfer.p2g_kernel(*flags) for flags in transfer.P2G_VARIANTS]
-               + [transfer.g2p_kernel(*flags) for flags in transfer.G2P_VARIANTS]]
+    kernels = [(k, ARCHS) for k in [p2g_kernel(name, cpic) for name in PASSES for cpic in (False, True)]
+               + [g2p_kernel(sparse, cpic) for sparse in (False, True) for cpic in (False, True)]]
     for model in ALL_MODELS:
-        kernels += [(transfer.p2g_kernel(True, True, False, (model,)), ARCHS[:1]),
-                    (transfer.g2p_kernel(True, True, (model,)), ARCHS[:1])]
+        kernels += [(p2g_kernel("sparse", True, (model,)), ARCHS[:1]),
+                    (g2p_kernel(True, True, (model,)), ARCHS[:1])]
     for kernel, archs in kernels:
         for arch in archs:
             paths = wp.compile_aot_module(kernel.module, arch=arch)

@@ -84,7 +84,7 @@ def test_parallel_p2g_loses_no_mass(monkeypatch):
     solver, g = sim.solver, sim.solver.grid
     state = ParticleState.from_numpy(sim._state.numpy(), "cpu")
     solver.begin_segment(state, 0.0, 1e-4)  # buffers and dt of the substep's launches
-    solver._p2g(state, g)
+    solver.p2g(state)
     private = solver.launcher.private_grids(g.level, g.mv, g.m)
     assert private.extra == 1
     own = g.m.numpy().astype(np.float64).sum()
@@ -92,7 +92,7 @@ def test_parallel_p2g_loses_no_mass(monkeypatch):
     assert own > 0.2 * other and other > 0.2 * own  # both threads really scattered
     mass = state.numpy()["mass"].astype(np.float64).sum()
     assert abs(own + other - mass) < 1e-5 * mass
-    solver._grid_update(g)  # adds the threads' sums and clears them for the next step
+    solver.grid_update()  # adds the threads' sums and clears them for the next step
     assert not private.m.numpy().any() and not g.m.numpy().any()
 
 

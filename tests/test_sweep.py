@@ -400,7 +400,7 @@ def test_ray_sweep_matches_the_local_one(local_sweep, local_ray, tmp_path, monke
         raise AssertionError("run_one ran in the driver, not in a Ray worker")
 
     # the workers import abmpm.sweep afresh; only a run in this process would hit this
-    monkeypatch.setattr("abmpm.sweep.run_one", not_here)
+    monkeypatch.setattr("abmpm.sweep.execute.run_one", not_here)
     out = tmp_path / "ray"
     done = []
     t0 = time.perf_counter()

@@ -22,78 +22,42 @@ are printed literally (``[`` in a path is not rich markup).
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
 import os
+import platform
 import sys
 from pathlib import Path
 
+import numpy as np
+import warp as wp
+from rich.table import Table
+
+import abmpm
+from abmpm.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK
+from abmpm.cli_common import esc as _esc
+from abmpm.cli_common import frames_arg as _frames_arg
+from abmpm.cli_common import port_arg as _port_arg
+from abmpm.cli_common import stderr_console as _stderr
+from abmpm.cli_common import stdout_console as _stdout
+from abmpm.cli_common import threads_arg as _threads_arg
 from abmpm.cli_post import add_parsers as add_post_parsers
+from abmpm.cli_sweep import add_parsers as add_sweep_parsers
+from abmpm.compare import PAPER_SCENES, compare, run_paper
 from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
-
-EXIT_OK = 0
-EXIT_ERROR = 2
-EXIT_INTERRUPTED = 130
-
-
-def _quiet_warp() -> None:
-    """Keep Warp's start-up and module-load chatter off the terminal."""
-    if os.environ.get("ABMPM_VERBOSE"):
-        return
-    try:
-        import warp as wp
-    except ImportError:  # pragma: no cover
-        return
-    level = getattr(wp, "LOG_WARNING", None)
-    if level is not None and hasattr(wp.config, "log_level"):
-        wp.config.log_level = max(wp.config.log_level, level)
-    wp.config.quiet = True  # older Warp versions
-    # Warp's native code prints "could not load the CUDA driver" on every start on a
-    # machine without a GPU; `abmpm info` says the same thing in plain words.
-    from abmpm.simulation import init_warp
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            try:
-                init_warp()
-            finally:
-                os.dup2(saved, 2)
-    finally:
-        os.close(saved)
-
-
-def _stdout():
-    from rich.console import Console
-
-    return Console(highlight=False)
-
-
-def _esc(text) -> str:
-    """User text (paths, names, messages) printed through rich: '[' is not markup."""
-    from rich.markup import escape
-
-    return escape(str(text))
-
-
-def _stderr():
-    from rich.console import Console
-
-    return Console(stderr=True, highlight=False)
-
+from abmpm.io.writers.surface import surface_folder
+from abmpm.io.writers.viewer import ViewOptions
+from abmpm.post.viewer import Viewer
+from abmpm.runner import run
+from abmpm.runtime import init_warp, init_warp_silently
+from abmpm.scene.loader import list_builtin_scenes, load_scene
+from abmpm.scene.model import with_mode
+from abmpm.sweep import parse_set
 
 # --------------------------------------------------------------------------- commands
 
 
-def _threads_arg(text: str) -> int:
-    return _positive_int(text, "threads")
-
-
 def _cmd_run(args) -> int:
-    from abmpm.runner import run
-    from abmpm.scene.loader import load_scene
-    from abmpm.scene.model import with_mode
-
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)  # read by the solver's launcher
 
@@ -146,10 +110,6 @@ def _print_summary(s: dict, out: Path) -> None:
 
 
 def _cmd_scenes(args) -> int:
-    from rich.table import Table
-
-    from abmpm.scene.loader import list_builtin_scenes, load_scene
-
     table = Table(title="built-in scenes (abmpm run NAME)")
     table.add_column("name", style="cyan", no_wrap=True)
     table.add_column("materials")
@@ -167,21 +127,11 @@ def _cmd_scenes(args) -> int:
 
 
 def _cmd_info(args) -> int:
-    import platform
-
-    import numpy as np
-
-    import abmpm
-
     con = _stdout()
     con.print(f"abmpm   {getattr(abmpm, '__version__', '?')}")
     con.print(f"python  {platform.python_version()} ({_esc(sys.executable)})")
     con.print(f"numpy   {np.__version__}")
     try:
-        import warp as wp
-
-        from abmpm.simulation import init_warp
-
         init_warp()
         con.print(f"warp    {wp.config.version}")
         con.print("devices:")
@@ -197,8 +147,6 @@ def _cmd_info(args) -> int:
     except Exception as exc:  # info must work even when Warp is broken
         con.print(f"warp    unavailable ({type(exc).__name__}: {_esc(exc)})")
     for mod, label in (("pxr", "usd-core"), ("imageio_ffmpeg", "imageio-ffmpeg")):
-        import importlib.util
-
         con.print(f"{label:<15} {'installed' if importlib.util.find_spec(mod) else 'not installed'}")
     return EXIT_OK
 
@@ -207,14 +155,11 @@ def _view_options(args):
     """abmpm run --view: the live view, served on after the run until Ctrl-C."""
     if not args.view:
         return None
-    from abmpm.io.writers.viewer import ViewOptions
 
     return ViewOptions(port=args.view_port, keep_open=True)
 
 
 def _cmd_view(args) -> int:
-    from abmpm.post.viewer import Viewer
-
     viewer = Viewer(args.dir, host=args.host, port=args.port)
     try:
         _stdout().print(f"viewing {_esc(args.dir)} at [bold]{_esc(viewer.url)}[/bold] (Ctrl-C to stop)")
@@ -227,8 +172,6 @@ def _cmd_view(args) -> int:
 
 
 def _cmd_surface(args) -> int:
-    from abmpm.post.surface import surface_folder
-
     info = surface_folder(args.dir)
     if not args.quiet:
         usd = ", particles.usd rewritten with them" if info["usd"] else ""
@@ -239,64 +182,8 @@ def _cmd_surface(args) -> int:
     return EXIT_OK
 
 
-def _cmd_sweep(args) -> int:
-    from abmpm.sweep import feasible_on, import_ray, parse_set, plan_sweep, run_sweep
-
-    if args.ray:
-        import_ray()  # "--ray needs ray" before anything else
-    values = parse_set(args.set)
-    # every combination is validated (and, run here, checked to fit) before any run
-    plan = plan_sweep(args.scene, values, check=None if args.ray else feasible_on(args.device))
-    name = plan.source.data.get("name") or plan.source.default_name or "scene"
-    out = Path(args.out) if args.out else Path("out") / f"{name}_sweep"
-    con = _stderr()
-    n = len(plan.runs)
-    if not args.quiet:
-        where = f"on Ray ({args.ray})" if args.ray else "one after another"
-        con.print(f"[bold]abmpm[/bold] sweep [cyan]{_esc(args.scene)}[/cyan]: {n} run{'s' * (n != 1)} "
-                  f"{where} -> {_esc(out)}")
-
-    def on_start(i, n, run_name):
-        if not args.quiet:
-            con.print(f"[{i}/{n}] {'queued' if args.ray else 'running'} {run_name}", markup=False)
-
-    def on_done(i, n, row):
-        if args.quiet:
-            return
-        status = row.get("status")
-        color = "green" if status == "completed" else "red"
-        figures = ""
-        if row.get("particle_count") is not None:
-            figures = f", {row['particle_count']:,} particles, {row.get('steps', 0):,} steps"
-            if row.get("wall_seconds") is not None:
-                figures += f" in {row['wall_seconds']:.1f} s"
-        msg = f" ({_esc(row['message'])})" if row.get("message") and status != "completed" else ""
-        con.print(f"{_esc(f'[{i}/{n}]')} {_esc(row['run'])}: [{color}]{_esc(status)}[/{color}]{figures}{msg}")
-
-    try:
-        rows = run_sweep(
-            args.scene, values, out, frames=args.frames, device=args.device, threads=args.threads,
-            preview=not args.no_preview, ray=args.ray, on_start=on_start, on_done=on_done, plan=plan,
-        )
-    except KeyboardInterrupt:
-        print(f"interrupted; the finished runs are in {out / 'sweep.csv'}", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    failed = [r for r in rows if r.get("status") != "completed"]
-    if not args.quiet:
-        _print_sweep_table(rows, out)
-    if failed:
-        kinds = ", ".join(f"{sum(r.get('status') == k for r in failed)} {k}"
-                          for k in dict.fromkeys(r.get("status") for r in failed))
-        print(f"error: {len(failed)} of {len(rows)} runs failed ({kinds}); see {out / 'sweep.csv'}", file=sys.stderr)
-        return EXIT_ERROR
-    return EXIT_OK
-
-
 def _cmd_compare(args) -> int:
     """``abmpm compare SCENE`` and ``abmpm paper``: the modes of a scene side by side."""
-    from abmpm.compare import compare, run_paper
-    from abmpm.scene.loader import load_scene
-
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)
     modes = tuple(args.modes or ("original", "adaptive", "finest"))
@@ -308,8 +195,6 @@ def _cmd_compare(args) -> int:
 
     overrides = {}
     if args.set:
-        from abmpm.sweep import parse_set
-
         for key, values in parse_set(args.set).items():
             if len(values) != 1:
                 raise AbmpmError(f"--set {key}: one value here (abmpm sweep runs several)")
@@ -340,44 +225,10 @@ def _cmd_compare(args) -> int:
 
 
 def _paper_scenes() -> tuple:
-    from abmpm.compare import PAPER_SCENES
-
     return PAPER_SCENES
 
 
-def _print_sweep_table(rows: list[dict], out: Path) -> None:
-    from rich.table import Table
-
-    def num(v, fmt):
-        return "" if v is None else format(v, fmt)
-
-    failed = any(r.get("status") != "completed" for r in rows)
-    table = Table(title=f"sweep: {len(rows)} runs")
-    table.add_column("run", style="cyan", no_wrap=True)
-    table.add_column("status", no_wrap=True)
-    for head in ("particles", "steps", "steps/s", "wall s"):
-        table.add_column(head, justify="right", no_wrap=True)
-    if failed:
-        table.add_column("message")
-    for r in rows:
-        status = r.get("status") or "?"
-        color = "green" if status == "completed" else "red"
-        cells = [
-            _esc(r.get("run")), f"[{color}]{_esc(status)}[/{color}]",
-            num(r.get("particle_count"), ","), num(r.get("steps"), ","),
-            num(r.get("steps_per_second"), ",.0f"), num(r.get("wall_seconds"), ".1f"),
-        ]
-        if failed:
-            cells.append(_esc(r.get("message") or "") if status != "completed" else "")
-        table.add_row(*cells)
-    con = _stdout()
-    con.print(table)
-    con.print(f"results: {_esc(out / 'sweep.csv')}, {_esc(out / 'sweep.json')}")
-
-
 def _cmd_bench(args) -> int:
-    import importlib
-
     missing = False
     try:
         run_bench = importlib.import_module("abmpm.bench").run_bench
@@ -407,40 +258,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_ERROR, f"abmpm: error: {message} (see: {self.prog} --help)\n")
 
 
-def _positive_int(text: str, what: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
-
-
-def _port_arg(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= n <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is between 0 and 65535, got {n}")
-    return n
-
-
-def _frames_arg(text: str) -> int:
-    return _positive_int(text, "frames")
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="abmpm",
         description="Adaptive boundary MLS-MPM simulator (NVIDIA Warp, CPU and CUDA).",
     )
-    try:
-        from abmpm import __version__
-    except ImportError:  # pragma: no cover
-        __version__ = "?"
-    p.add_argument("--version", action="version", version=f"abmpm {__version__}")
+    p.add_argument("--version", action="version", version=f"abmpm {getattr(abmpm, '__version__', '?')}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -470,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=_cmd_info)
 
     add_post_parsers(sub)  # render (preview or --beauty), blender
+    add_sweep_parsers(sub)  # sweep
 
     v = sub.add_parser("view", help="browse a run's frames in the web browser (needs viser)")
     v.add_argument("dir", metavar="DIR", help="output folder of a run")
@@ -483,27 +307,6 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("dir", metavar="DIR", help="output folder of a run")
     m.add_argument("--quiet", "-q", action="store_true", help="print nothing")
     m.set_defaults(func=_cmd_surface)
-
-    w = sub.add_parser("sweep", help="run a scene for every combination of values (a wedge)",
-                       description="Run SCENE once per combination of the --set values (their Cartesian "
-                                   "product), each into DIR/<key=value,...>/, and write DIR/sweep.csv and "
-                                   "DIR/sweep.json. Exit status 2 if any run failed.")
-    w.add_argument("scene", metavar="SCENE", help="scene file (.toml) or built-in name (see `abmpm scenes`)")
-    w.add_argument("--set", "-s", dest="set", action="append", required=True, metavar="KEY=V1,V2,...",
-                   help="a scene key and its values, e.g. simulation.dx=0.02,0.01 or materials[0].viscosity=0,1e-3 "
-                        "(TOML values; bare words are strings); repeat for more keys")
-    w.add_argument("--out", "-o", metavar="DIR", help="sweep folder (default: out/<scene name>_sweep/)")
-    w.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="frames per run (default: duration * fps)")
-    w.add_argument("--device", "-d", metavar="DEVICE",
-                   help="cpu, cuda or cuda:N (default: the scene's, else cuda when available)")
-    w.add_argument("--threads", "-j", type=_threads_arg, metavar="N",
-                   help="CPU threads per run (default: 1 on Ray, else $ABMPM_THREADS or every core)")
-    w.add_argument("--ray", metavar="auto|local|ADDRESS",
-                   help="run as Ray tasks: auto (the running cluster, else a new local one), local (a new "
-                        "local one) or a cluster address; needs pip install 'abmpm[sweep]'")
-    w.add_argument("--no-preview", action="store_true", help="no preview.mp4 / preview.png per run")
-    w.add_argument("--quiet", "-q", action="store_true", help="no progress lines or table")
-    w.set_defaults(func=_cmd_sweep)
 
     for name in ("compare", "paper"):
         if name == "compare":
@@ -552,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
-    _quiet_warp()
+    init_warp_silently()
     try:
         return args.func(args)
     except AbmpmError as exc:

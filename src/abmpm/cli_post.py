@@ -17,6 +17,9 @@ from rich.console import Console
 from rich.markup import escape
 
 from abmpm.errors import AbmpmError
+from abmpm.io.blender import write_blend
+from abmpm.post.beauty import BeautySettings, render_beauty
+from abmpm.runner import render_folder
 
 __all__ = ["add_parsers"]
 
@@ -55,13 +58,10 @@ def _cmd_render(args) -> int:
                                 ("--variant", args.variant), ("--colliders", args.colliders)) if v]
         if extra:
             raise AbmpmError(f"{', '.join(extra)}: only with --beauty")
-        from abmpm.runner import render_folder
 
         info = render_folder(args.dir, progress=not args.quiet)
         files = f"{info['preview']}, {info['poster']}"
     else:
-        from abmpm.post.beauty import BeautySettings, render_beauty
-
         base = BeautySettings()
         w, h = args.size or (base.width, base.height)
         settings = BeautySettings(width=w, height=h, spp=args.spp or base.spp, stride=args.stride or 1,
@@ -74,8 +74,6 @@ def _cmd_render(args) -> int:
 
 
 def _cmd_blender(args) -> int:
-    from abmpm.io.blender import write_blend
-
     info = write_blend(args.dir, args.output)
     if not args.quiet:
         Console(highlight=False).print(

@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry.motion import KinematicMotion
 from .geometry.meshes import limit_edge_length
+from .geometry.motion import KinematicMotion
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
 from .geometry.sampling import JITTER, particle_volume, sample_body
 from .scene.model import Scene
 from .sim.boundary import FACES
-from .sim.colliders import RigidBody
+from .sim.collider_set import RigidBody
 from .sim.materials import MaterialParams, material_params, wave_speed
 from .sim.solver import SolverConfig
 

@@ -33,15 +33,16 @@ import numpy as np
 from rich.markup import escape
 
 from abmpm.errors import AbmpmError, OutputError, SceneError, SimulationBlowUp
-from abmpm.io.resume import resume_from_checkpoint
 from abmpm.io.outdir import SCENE_FILE, SUMMARY_FILE, clean_previous_run, clean_temporaries, prepare_out_dir
 from abmpm.io.progress import Progress
+from abmpm.io.resume import resume_from_checkpoint
 from abmpm.io.summary import write_json
 from abmpm.io.writers import FrameData, RunContext, Writer, build_writers
 from abmpm.io.writers.summary import make_summary
 from abmpm.post.preview import render_folder
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
+from abmpm.simulation import Simulation
 
 __all__ = ["render_folder", "run", "total_frames"]
 
@@ -77,8 +78,6 @@ def run(
     On :class:`SimulationBlowUp` the last good state is checkpointed, the summary is
     written with status ``"blew_up"`` and the exception is re-raised.
     """
-    from abmpm.simulation import Simulation
-
     t_start = time.perf_counter()
     scene = load_scene(scene) if not isinstance(scene, Scene) else scene
     out = Path(out_dir)

@@ -10,18 +10,17 @@ geometry's mesh loading of the scene's bodies.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
-import warp as wp
 from scipy.ndimage import binary_dilation
 
 from .errors import AbmpmError, SimulationBlowUp
 from .geometry.region import refinement_region
 from .inputs import material_rows, max_wave_speed, region_params, rigid_bodies, sample_scene, solver_config
+from .runtime import cfl_time_step, choose_device, init_warp  # noqa: F401 (init_warp: part of the API)
 from .scene.model import Scene
-from .sim.colliders import ColliderSet
+from .sim.collider_set import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
@@ -37,50 +36,6 @@ LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_sid
 # How far the sound speed of compressed fluid may rise before the time step follows
 # it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
 STIFFENING_SLACK = 2.0
-
-_warp_ready = False
-
-
-def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float) -> float:
-    """dt = min(max_dt, cfl dx / (wave speed + particle speed)): a signal crosses at
-    most ``cfl`` of a cell per step."""
-    return min(max_dt, cfl * dx / signal_speed)
-
-
-def init_warp() -> None:
-    global _warp_ready
-    if not _warp_ready:
-        if not os.environ.get("ABMPM_VERBOSE") and hasattr(wp, "LOG_WARNING"):
-            wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no module-load chatter
-        wp.config.quiet = True
-        if os.environ.get("ABMPM_WARP_DEBUG"):
-            # Warp's debug build: every array access is bounds-checked (slow; for tests)
-            wp.config.mode = "debug"
-            wp.config.verify_fp = False
-        wp.init()
-        _warp_ready = True
-
-
-def choose_device(requested: str | None) -> str:
-    """'cuda' when a GPU is present, else 'cpu'; an explicit request is honoured or refused."""
-    init_warp()
-    has_cuda = wp.get_cuda_device_count() > 0
-    if requested in (None, "", "auto"):
-        return "cuda:0" if has_cuda else "cpu"
-    if requested == "cpu":
-        return "cpu"
-    if requested.startswith("cuda"):
-        if not has_cuda:
-            raise AbmpmError(f"device {requested!r} requested but no CUDA device is available (use 'cpu')")
-        if requested == "cuda":
-            return "cuda:0"
-        index = requested[len("cuda:"):]
-        count = wp.get_cuda_device_count()
-        if not requested.startswith("cuda:") or not index.isdigit() or int(index) >= count:
-            raise AbmpmError(f"unknown device {requested!r}: this machine has cuda:0 to cuda:{count - 1}")
-        return requested
-    raise AbmpmError(f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')")
-
 
 @dataclass(frozen=True)
 class Particles:

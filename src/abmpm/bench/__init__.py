@@ -19,8 +19,22 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import warp as wp
 
-from ..sim.parallel import THREADS_ENV, default_threads
+from ..io.summary import write_json
+from ..scene.model import (
+    BoxBody,
+    CrossedPlatesCollider,
+    Elastic,
+    Fluid,
+    Scene,
+    SheetCollider,
+    SimulationSettings,
+    SphereBody,
+    ThinBoxCollider,
+)
+from ..sim.parallel import THREADS_ENV, KernelProfile, default_threads
+from ..simulation import Simulation, choose_device
 from .interface import run_interface_suite
 
 # (particles, grid cells per side) of the issue's fluid benchmark
@@ -31,8 +45,6 @@ def fluid_block_scene(n: int, grid: int):
     """The reference kernel's problem in scene form: unit box with a 3-cell wall band
     (same node count as the reference's grid), a fluid block of ~n particles at 8
     per cell, density 1 and bulk modulus 400 with a linear equation of state."""
-    from ..scene.model import BoxBody, Fluid, Scene, SimulationSettings
-
     dx = 1.0 / grid
     # smallest near-cubic block holding at least n particles (never fewer than the reference)
     cells = np.full(3, int((n / 8.0) ** (1.0 / 3.0)))
@@ -54,8 +66,6 @@ def fluid_block_scene(n: int, grid: int):
 
 def slit_scene(dx: float = 0.03, factor: int = 3):
     """Water drains through a slit 1.25 coarse cells wide in a floor of two thin plates."""
-    from ..scene.model import BoxBody, Fluid, Scene, SimulationSettings, ThinBoxCollider
-
     W, Z, yp = 0.6, 0.24, 0.25
     half = (W - 1.25 * dx) / 2
     plates = [ThinBoxCollider(size=(half, 0.1 * dx, Z + 0.1), center=(half / 2, yp, Z / 2)),
@@ -72,14 +82,6 @@ def slit_scene(dx: float = 0.03, factor: int = 3):
 
 def jelly_scene(dx: float = 1 / 30, factor: int = 3):
     """A jelly ball dropped onto crossed thin blades (after the paper's jelly / bunny-split)."""
-    from ..scene.model import (
-        CrossedPlatesCollider,
-        Elastic,
-        Scene,
-        SimulationSettings,
-        SphereBody,
-    )
-
     return Scene(
         name="bench_jelly",
         simulation=SimulationSettings(domain_max=(1.0, 1.0, 1.0), dx=dx, fps=20,
@@ -117,9 +119,6 @@ def print_profile(title: str, rows: list[dict]) -> None:
 def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
     """Wall-clock steps/s, mean particle count and cost per particle-step of the same
     scene in each mode; with ``profile`` also a breakdown by phase and kernel."""
-    from ..sim.parallel import KernelProfile
-    from ..simulation import Simulation
-
     out = {}
     plain = scene.model_copy(deep=True)
     plain.simulation.refinement.reconstruct = False
@@ -156,8 +155,6 @@ def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
 
 def time_simulation(sim, seconds: float = 4.0, warmup_steps: int = 3) -> tuple[float, int]:
     """steps/s of ``sim.step()`` (frame bookkeeping, diagnostics and sorting included)."""
-    import warp as wp
-
     for _ in range(warmup_steps):
         sim.step()
     wp.synchronize()
@@ -178,9 +175,6 @@ def time_collider_overhead(device: str, seconds: float) -> dict:
     same block resting on the domain floor without the collider (steps/s ratio).
     Two layouts: the near-cubic block of the fluid benchmark (~10% of its particles
     within the collider band) and a thin layer 6 cells deep (~45% within it)."""
-    from ..scene.model import BoxBody, Fluid, Scene, SheetCollider, SimulationSettings
-    from ..simulation import Simulation
-
     dx = 1.0 / 64
     y0 = 0.3
     res = {}
@@ -267,8 +261,6 @@ def run_bench(argv: list[str] | None = None) -> dict:
                     help="adaptive suite: time every kernel and phase of the step (ms per step)")
     args = ap.parse_args(argv or [])
 
-    from ..simulation import Simulation, choose_device
-
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
@@ -336,7 +328,5 @@ def run_bench(argv: list[str] | None = None) -> dict:
         "adaptive": adaptive, "colliders": colliders, "interface": interface,
     }
     if args.json:
-        from ..io.summary import write_json
-
         write_json(args.json, result)
     return result

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..compare.outcomes import mass_beyond_plane
 from ..scene import model as sm
+from ..simulation import Simulation
 
 # (slit width in coarse cells, refinement factor b)
 SLITS = [(0.5, 2), (1.0, 2), (0.75, 3), (1.0, 3), (1.5, 3), (0.75, 4)]
@@ -57,8 +58,6 @@ def hydrostatic_J(y: np.ndarray) -> np.ndarray:
 
 def run_slit(slit_cells: float, b: int, seconds: float, device: str) -> dict:
     """Mass through, steps and wall seconds of one slit case in every mode."""
-    from ..simulation import Simulation
-
     out = {}
     for mode in MODES:
         scene, yp = plate_with_slit(mode, slit_cells, b)
@@ -82,8 +81,6 @@ def run_tank(seconds: float, device: str) -> dict:
     """The tank at rest after ``seconds``: the spread of J - J_hydrostatic (1st to 99th
     percentile, away from the surface and the floor) of the level-1 particles against
     finest's, and the fastest particle against finest's."""
-    from ..simulation import Simulation
-
     dx = 0.05
     res = {}
     for mode in ("adaptive", "finest"):

@@ -11,7 +11,14 @@ import numpy as np
 
 from abmpm.compare.outcomes import leaks, outcome_for
 from abmpm.compare.paper import PAPER_CONTACT, PAPER_SCENES, QUICK_OVERRIDES
+from abmpm.compare.report import scene_figures, write_report
 from abmpm.errors import AbmpmError, SimulationBlowUp
+from abmpm.io.outdir import scene_from_folder
+from abmpm.post.preview import disk_frames
+from abmpm.runner import run
+from abmpm.scene.loader import load_scene
+from abmpm.scene.model import with_mode
+from abmpm.sweep import scene_source
 
 MODES = ("original", "adaptive", "finest")
 TABLE_FILE = "table1.json"
@@ -21,8 +28,6 @@ REPORT_FILE = "report.md"
 def apply_overrides(scene, overrides: dict):
     """The scene with dotted keys (``simulation.dx``, ``colliders.0.text``) set, validated
     again like a scene file (the same overrides as ``abmpm sweep --set``)."""
-    from abmpm.sweep import scene_source
-
     return scene_source(scene).build(overrides, label=f"{scene.name} (overridden)")
 
 
@@ -63,8 +68,6 @@ class FrameSeq(Sequence):
 
 
 def _load_frames(run_dir: Path, fps: float) -> FrameSeq:
-    from abmpm.post.preview import disk_frames
-
     return FrameSeq([(n / fps, load) for n, load in disk_frames(run_dir)])
 
 
@@ -158,11 +161,6 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
     time, seconds) runs to that long after contact instead of ``frames`` and times the
     frames from contact on apart (:func:`window_frames`, :func:`window_figures`).
     Returns this scene's records."""
-    from abmpm.compare.report import scene_figures, write_report
-    from abmpm.runner import run
-    from abmpm.scene.loader import load_scene
-    from abmpm.scene.model import with_mode
-
     modes = check_modes(modes)
     base = load_scene(scene)
     if quick:
@@ -202,9 +200,6 @@ def remeasure(out) -> list[dict]:
     """Measure the runs recorded in ``out/table1.json`` again from their folders (their
     ``scene.json``, ``summary.json`` and frames) and rewrite the figures, the table
     and the report: for a changed outcome function, without running anything."""
-    from abmpm.compare.report import scene_figures, write_report
-    from abmpm.io.outdir import scene_from_folder
-
     out = Path(out)
     table, scenes = [], {}
     for old in read_table(out):

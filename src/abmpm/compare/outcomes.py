@@ -14,7 +14,16 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from shapely import points as shp_points
+from shapely.ops import unary_union
+from shapely.prepared import prep
 
+from abmpm.geometry.glyphs import panel_polygons
+from abmpm.geometry.motion import KinematicMotion
+from abmpm.geometry.procedural import _hourglass_profile
 from abmpm.geometry.transforms import euler_matrix
 
 Frames = list[tuple[float, dict]]
@@ -37,8 +46,6 @@ def mass_beyond_plane(x: np.ndarray, mass: np.ndarray, point, normal) -> float:
 def link_radius(x: np.ndarray, factor: float = 1.5) -> float:
     """``factor`` times the median distance of a particle to its nearest neighbour: the
     particle spacing as the particles themselves show it (mixed levels included)."""
-    from scipy.spatial import cKDTree
-
     if len(x) < 2:
         return 0.0
     d, _ = cKDTree(x).query(x, k=2)
@@ -67,10 +74,6 @@ def pieces(x: np.ndarray, mass: np.ndarray | None = None, radius: float | None =
     (default :func:`link_radius`, 1.5 spacings) are linked, unless the link passes
     through one of the ``walls`` (a blade between them). Returns (number of pieces
     holding at least ``min_mass`` of the mass, label per particle)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     x = np.asarray(x, np.float64)
     n = len(x)
     if n == 0:
@@ -153,8 +156,6 @@ def _plane_normal(collider, local=(0.0, 0.0, 1.0)) -> np.ndarray:
 def blade_rects(collider, t: float, pad: float = 0.0) -> list[Rect]:
     """The blade(s) of a ``blade`` or ``crossed_plates`` collider at time ``t`` as
     rectangles (its motion applied), grown by ``pad`` on every side."""
-    from abmpm.geometry.motion import KinematicMotion
-
     pose = KinematicMotion(collider.motion, collider.center).pose(t)
     c = pose.rotation @ np.asarray(collider.center, np.float64) + pose.offset
     R0 = pose.rotation @ euler_matrix(collider.rotation)
@@ -173,8 +174,6 @@ def _far_side(scene, frames: Frames, point, normal) -> np.ndarray:
 
 def _hourglass_radius(collider):
     """World y -> inner radius of the glass (None outside its height)."""
-    from abmpm.geometry.procedural import _hourglass_profile
-
     prof = _hourglass_profile(collider.height, collider.radius, collider.neck_radius, 400)
     y0 = collider.center[1] - collider.height / 2
 
@@ -187,10 +186,6 @@ def _hourglass_radius(collider):
 
 def _panel_material(collider):
     """The solid part of a letter panel (shapely), in the panel's own xy coordinates."""
-    from shapely.ops import unary_union
-
-    from abmpm.geometry.glyphs import panel_polygons
-
     return unary_union(panel_polygons(collider.text, collider.size, None, "DejaVu Sans"))
 
 
@@ -210,9 +205,6 @@ def panel_crossings_through_material(scene, frames: Frames, margin: float) -> in
     hole or the panel's edge, and that no path through an opening at most
     ``PANEL_DETOUR`` times their displacement explains: they went through the solid
     panel."""
-    from shapely import points as shp_points
-    from shapely.prepared import prep
-
     col = _collider(scene, "letter_panel")
     if col is None or len(frames) < 2:
         return 0

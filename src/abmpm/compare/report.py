@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from abmpm.compare.outcomes import PLOTTED, outcome_for
 from abmpm.compare.paper import PAPER_GPU, PAPER_TABLE1
+from abmpm.post.camera import Camera
+from abmpm.post.preview import PREVIEW_SIZE, disk_frames, frame_image, region_lines
 
 OUTCOME_PNG = "outcome.png"
 MONTAGE_PNG = "montage.png"
@@ -16,11 +20,7 @@ MODE_COLORS = {"original": "tab:blue", "adaptive": "tab:orange", "finest": "tab:
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    matplotlib.use("Agg")  # files only, never a window
     return plt
 
 
@@ -49,9 +49,6 @@ def plot_outcome(scene, records: list[dict], path: Path) -> Path | None:
 
 def plot_montage(scene, records: list[dict], path: Path, columns: int = MONTAGE_COLUMNS) -> Path | None:
     """The modes (rows) at the same output frames (columns), drawn like the preview."""
-    from abmpm.post.camera import Camera
-    from abmpm.post.preview import PREVIEW_SIZE, disk_frames, frame_image, region_lines
-
     runs = [(r["mode"], Path(r["run_dir"])) for r in records]
     sources = {mode: dict(disk_frames(d)) for mode, d in runs}
     common = sorted(set.intersection(*(set(s) for s in sources.values()))) if sources else []

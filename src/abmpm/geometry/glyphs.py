@@ -13,6 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from matplotlib.font_manager import FontProperties
+from matplotlib.path import Path
+from matplotlib.textpath import TextPath
+from shapely import affinity
+from shapely.geometry import Polygon, box
+from shapely.geometry.polygon import orient
+from shapely.ops import unary_union
 
 from abmpm.geometry.arguments import positive
 from abmpm.geometry.topology import boundary_halfedges, halfedges
@@ -25,10 +32,6 @@ _CURVE_STEPS = 8  # line pieces per Bezier segment of a glyph outline
 
 def _glyph_rings(text: str, font: str):
     """Closed outline rings of ``text`` (font units at size ``_TEXT_EM``) as (N, 2) arrays."""
-    from matplotlib.font_manager import FontProperties
-    from matplotlib.path import Path
-    from matplotlib.textpath import TextPath
-
     try:
         path = TextPath((0.0, 0.0), text, size=_TEXT_EM, prop=FontProperties(family=font))
     except (AttributeError, ValueError, IndexError):
@@ -62,9 +65,6 @@ def _glyph_polygons(text: str, font: str):
     (filled), at odd depth a counter (the inside of "O"). Each filled region is its
     outer ring minus its direct children; the union merges touching letters.
     """
-    from shapely.geometry import Polygon
-    from shapely.ops import unary_union
-
     polys = []
     for ring in _glyph_rings(text, font):
         p = Polygon(ring).buffer(0)
@@ -109,9 +109,6 @@ def _as_polygons(geom):
 
 def _clean_polygon(poly, tol: float):
     """Drop collinear and near-duplicate vertices (they would give zero-area triangles)."""
-    from shapely.geometry import Polygon
-    from shapely.geometry.polygon import orient
-
     out = poly.simplify(tol, preserve_topology=True)
     if out.is_empty or out.geom_type != "Polygon":
         return None
@@ -121,8 +118,6 @@ def _clean_polygon(poly, tol: float):
 
 def _text_layout(text, size, font_size, font):
     """Glyph geometry scaled to metres and centred on the origin of the panel."""
-    from shapely import affinity
-
     w, h = size
     glyphs = _glyph_polygons(text, font)
     if glyphs.is_empty:
@@ -144,8 +139,6 @@ def letter_hole_polygons(text="ABC", size=(1.0, 0.5), font_size=None, font="Deja
     A hole is the glyph's filled shape, so the counters of "A", "O", "B" appear as the
     polygon's ``interiors`` (the island of material that stays inside the hole).
     """
-    from shapely.geometry import box
-
     w, h = (positive(s, "letter_panel size") for s in np.broadcast_to(np.asarray(size, dtype=float), (2,)))
     glyphs = _text_layout(str(text), (w, h), font_size, font)
     glyphs = glyphs.intersection(box(-w / 2, -h / 2, w / 2, h / 2))
@@ -153,9 +146,6 @@ def letter_hole_polygons(text="ABC", size=(1.0, 0.5), font_size=None, font="Deja
 
 
 def panel_polygons(text, size, font_size, font):
-    from shapely.geometry import box
-    from shapely.ops import unary_union
-
     w, h = (positive(s, "letter_panel size") for s in np.broadcast_to(np.asarray(size, dtype=float), (2,)))
     holes = letter_hole_polygons(text, (w, h), font_size, font)
     panel = box(-w / 2, -h / 2, w / 2, h / 2)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 
+import manifold3d
 import numpy as np
 import trimesh
 
@@ -158,8 +159,6 @@ def _union(meshes) -> trimesh.Trimesh:
     (``trimesh.boolean.union`` hands manifold3d float32 vertices, which moves the faces
     of a plate a tenth of a cell thick by ~1e-8 m; ``Mesh64`` keeps float64.)
     """
-    import manifold3d
-
     solids = [
         manifold3d.Manifold(
             manifold3d.Mesh64(

@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import warp as wp
 
 from abmpm.errors import SceneError
 from abmpm.geometry.meshes import MAX_COORDINATE, load_mesh, require_closed, transform_mesh
@@ -166,8 +167,6 @@ def _warp_inside_kernel():
     """
     global _inside_kernel
     if _inside_kernel is None:
-        import warp as wp
-
         @wp.kernel
         def inside_mesh_kernel(
             mesh: wp.uint64,
@@ -187,8 +186,6 @@ def _warp_inside_kernel():
 
 
 def _inside_mesh_warp(points: np.ndarray, mesh) -> np.ndarray:
-    import warp as wp
-
     kernel = _warp_inside_kernel()
     device = "cpu"
     wmesh = wp.Mesh(

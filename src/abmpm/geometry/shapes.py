@@ -11,6 +11,7 @@ is inside when ``|R^T (p - center) / radii| <= 1``.
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 from abmpm.geometry.transforms import euler_matrix
 
@@ -100,8 +101,6 @@ def inside_ellipsoids(points, ellipsoids: list[Ellipsoid]) -> np.ndarray:
 
 def ellipsoid_mesh(center, radii, rotation: np.ndarray, subdivisions: int = 3):
     """A closed triangle mesh of one ellipsoid (a stretched icosphere)."""
-    import trimesh
-
     mesh = trimesh.creation.icosphere(subdivisions=subdivisions)
     mesh.vertices = mesh.vertices * np.asarray(radii) @ np.asarray(rotation).T + np.asarray(center)
     return mesh
@@ -116,12 +115,8 @@ def bunny_mesh(center, size: float, rotation_deg=(0.0, 0.0, 0.0), subdivisions: 
     are not a valid solid, so never use that fallback to fill a body (the sampler uses
     :func:`inside_ellipsoids` instead).
     """
-    import trimesh
-
     parts = [ellipsoid_mesh(c, r, R, subdivisions) for c, r, R in bunny_ellipsoids(center, size, rotation_deg)]
-    try:
-        import manifold3d  # noqa: F401
-
+    try:  # manifold3d (a dependency) is trimesh's boolean engine
         union = trimesh.boolean.union(parts, engine="manifold")
         if isinstance(union, trimesh.Trimesh) and len(union.faces) > 0:
             return union

@@ -18,6 +18,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 __all__ = [
     "KEY",
@@ -153,9 +155,6 @@ def is_open(mesh) -> bool:
 def boundary_loops(mesh) -> list[np.ndarray]:
     """The boundary edges grouped into connected components (one per hole outline),
     each as the array of its vertex indices. Loops that touch at a vertex count as one."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     edges = mesh_boundary_edges(mesh)
     if len(edges) == 0:
         return []

@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 
 from abmpm.errors import OutputError
+from abmpm.io.checkpoint import checkpoint_name
 from abmpm.scene.model import Scene
 
 __all__ = [
@@ -77,8 +78,6 @@ def collider_path(out_dir: str | os.PathLike, frame: int) -> Path:
 
 
 def checkpoint_path(out_dir: str | os.PathLike, frame: int) -> Path:
-    from abmpm.io.checkpoint import checkpoint_name
-
     return Path(out_dir) / CHECKPOINTS_DIR / checkpoint_name(frame)
 
 

@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from plyfile import PlyData, PlyElement
 
 from abmpm.errors import OutputError
@@ -120,8 +121,6 @@ def write_mesh_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndar
     indices; the order of both is kept, so files of the same collider at different
     times share the face list and can be loaded as a deforming mesh.
     """
-    import trimesh
-
     path = Path(path)
     v = np.ascontiguousarray(vertices, dtype=np.float32)
     f = np.ascontiguousarray(faces, dtype=np.int32)
@@ -136,8 +135,6 @@ def write_mesh_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndar
 def read_mesh_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh PLY written by :func:`write_mesh_ply`: ``(vertices, faces)``
     as float64 (V, 3) and int64 (F, 3), in file order."""
-    import trimesh
-
     path = Path(path)
     try:
         mesh = trimesh.load(str(path), file_type="ply", process=False, force="mesh")

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from matplotlib import colormaps
 
 __all__ = ["PALETTE", "colors_by_level", "colors_by_material", "colors_by_speed"]
 
@@ -69,8 +70,6 @@ def colors_by_speed(v: np.ndarray, vmax: float | None = None, cmap: str = "virid
 
     ``vmax`` defaults to the 99th percentile of the speed (robust to outliers).
     """
-    from matplotlib import colormaps
-
     v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
     speed = np.linalg.norm(v, axis=1)
     if vmax is None:

@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+from matplotlib.figure import Figure
 
 from abmpm.io.atomic import atomic_write
 
@@ -31,10 +33,7 @@ def plot_energy(series: dict, path: str | os.PathLike, title: str | None = None)
     (or ``total_mass``), ``momentum`` (either (T,3) vectors or |p| values, also
     ``momentum_norm``). Missing series are skipped. The PNG is written atomically.
     """
-    import matplotlib
-
     matplotlib.use("Agg", force=False)
-    from matplotlib.figure import Figure
 
     t = _get(series, "time", "t")
     ke = _get(series, "kinetic_energy", "ke", "kinetic")

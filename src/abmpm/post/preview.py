@@ -32,6 +32,8 @@ from abmpm.io.outdir import (
 )
 from abmpm.io.ply import read_mesh_ply, read_particles_ply
 from abmpm.io.progress import Progress
+from abmpm.post import Camera, colors_by_level, colors_by_material, colors_by_speed, render, write_mp4, write_png
+from abmpm.post.render import region_outline
 from abmpm.scene.model import Scene
 
 __all__ = [
@@ -70,8 +72,6 @@ def splat_radius(frame: dict, densities: np.ndarray) -> np.ndarray:
 def particle_colors(frame: dict, scene: Scene, vmax: float | None) -> np.ndarray:
     """The particles' colors as ``output.color_by`` asks (auto: by level in adaptive
     mode, else by material)."""
-    from abmpm.post import colors_by_level, colors_by_material, colors_by_speed
-
     mode = scene.output.color_by
     if mode == "auto":
         mode = "level" if scene.simulation.refinement.mode == "adaptive" else "material"
@@ -165,8 +165,6 @@ def internal_kinetic_energy(frame: dict) -> float:
 
 def region_lines(out: Path) -> list:
     """The refined region's outline for the preview, from region.npz if there is one."""
-    from abmpm.post.render import region_outline
-
     path = out / REGION_FILE
     if not path.exists():
         return []
@@ -178,8 +176,6 @@ def frame_image(scene: Scene, frame: dict, camera, vmax: float | None = None, li
     """One frame (as :func:`disk_frames` loads it) drawn as the preview draws it: the
     particles sized by their volume and colored as ``output.color_by`` asks, the domain
     box, the colliders and ``lines`` (the refined region: :func:`region_lines`)."""
-    from abmpm.post import render
-
     st = scene.simulation
     return render(
         frame["x"], particle_colors(frame, scene, vmax), camera, splat_radius(frame, material_densities(scene)),
@@ -192,8 +188,6 @@ def render_preview(
 ) -> dict:
     """Render ``source`` [(frame, loader)] to preview.mp4 and the poster preview.png in
     ``out``: ``{"frames": count, "poster_frame": frame}``."""
-    from abmpm.post import Camera, write_mp4, write_png
-
     if not source:
         raise OutputError(f"{out}: no particle frames to render")
     st = scene.simulation

@@ -26,7 +26,6 @@ the reconstruction only, and the whole group is meshed at the fine spacing.
 from __future__ import annotations
 
 import re
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +33,7 @@ import numpy as np
 
 from abmpm.errors import OutputError
 from abmpm.io.outdir import SURFACE_RE, SURFACES_DIR
+from abmpm.io.ply import write_mesh_ply
 
 __all__ = ["SURFACES_DIR", "SurfaceMesh", "file_stem", "surface_folder", "surface_meshes", "surface_path", "surfaces_of_folder", "write_surfaces"]
 
@@ -57,7 +57,8 @@ def file_stem(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "material"
 
 
-def _import_splashsurf():
+def import_splashsurf():
+    """The pysplashsurf module, or an OutputError saying how to install it."""
     try:
         import pysplashsurf
     except ImportError as exc:
@@ -87,7 +88,7 @@ def _one_size(x: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, float]:
 def reconstruct(x: np.ndarray, spacing: float, options, fluid: bool) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) of the surface of particles ``x`` at ``spacing``, with the
     scene's ``[output.surface_mesh]`` options."""
-    ps = _import_splashsurf()
+    ps = import_splashsurf()
     iters = options.fluid_smoothing_iters if fluid else options.solid_smoothing_iters
     length = options.fluid_smoothing_length if fluid else options.solid_smoothing_length
     smooth = dict(mesh_smoothing_iters=iters, mesh_smoothing_weights=True, decimate_barnacles=True) if iters else {}
@@ -124,8 +125,6 @@ def surface_meshes(frame: dict, scene) -> list[SurfaceMesh]:
 
 def write_surfaces(out_dir: Path, frame: int, meshes: list[SurfaceMesh]) -> list[Path]:
     """Write the meshes of one frame as ``surfaces/surface_NNNNN_<material>.ply``."""
-    from abmpm.io.ply import write_mesh_ply
-
     paths = []
     for s in meshes:
         p = surface_path(out_dir, frame, s.material)
@@ -144,42 +143,3 @@ def surfaces_of_folder(out_dir: Path) -> dict[int, dict[str, Path]]:
             if m and p.is_file():
                 found.setdefault(int(m.group(1)), {})[m.group(2)] = p
     return found
-
-
-def surface_folder(out_dir: str | Path, on_frame=None) -> dict:
-    """Mesh the particle frames of a finished run (``abmpm surface OUT_DIR``) into
-    ``surfaces/``, with the options of the scene it saved; when the run wrote a USD
-    file, write it again with the surfaces. Returns the counts and the seconds spent."""
-    from abmpm.io.outdir import COLLIDER_RE, COLLIDERS_DIR, FRAME_RE, FRAMES_DIR, USD_FILE, numbered, scene_from_folder
-    from abmpm.io.ply import read_mesh_ply, read_particles_ply
-
-    out = Path(out_dir)
-    scene = scene_from_folder(out)
-    frames = numbered(out / FRAMES_DIR, FRAME_RE)
-    if not frames:
-        raise OutputError(f"{out}: no particle frames to mesh (the run had output.frames = false)")
-    _import_splashsurf()
-    spent, count = 0.0, 0
-    for n, path in frames:
-        particles = read_particles_ply(path)
-        t0 = time.perf_counter()
-        meshes = surface_meshes(particles, scene)
-        spent += time.perf_counter() - t0
-        count += sum(len(m.faces) for m in meshes)
-        write_surfaces(out, n, meshes)
-        if on_frame is not None:
-            on_frame()
-    usd = out / USD_FILE
-    if usd.is_file():
-        from abmpm.io.writers.usd import write_usd
-        from abmpm.post.preview import disk_frames
-
-        colliders = {n: read_mesh_ply(p) for n, p in numbered(out / COLLIDERS_DIR, COLLIDER_RE)}
-        write_usd(usd, scene, disk_frames(out), colliders, surfaces_of_folder(out))
-    return {
-        "frames": len(frames),
-        "triangles": count,
-        "seconds": round(spent, 3),
-        "seconds_per_frame": round(spent / len(frames), 4),
-        "usd": usd.is_file(),
-    }

@@ -6,6 +6,8 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+import imageio.v2 as imageio
+import imageio.v3 as iio
 import numpy as np
 
 from abmpm.errors import OutputError
@@ -43,8 +45,6 @@ def write_mp4(
     Odd dimensions are padded to even. All frames must have the same size.
     Returns the number of frames written.
     """
-    import imageio.v2 as imageio
-
     path = Path(path)
     count = 0
     shape = None
@@ -77,8 +77,6 @@ def write_mp4(
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an (H,W,3) uint8 image as PNG, atomically."""
-    import imageio.v3 as iio
-
     a = _rgb8(image)
     with atomic_write(Path(path)) as tmp:
         iio.imwrite(tmp, a, extension=".png")

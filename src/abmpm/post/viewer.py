@@ -40,6 +40,7 @@ from abmpm.io.outdir import (
 )
 from abmpm.io.ply import read_mesh_ply, read_particles_ply
 from abmpm.post.preview import REGION_COLOR, material_densities, particle_colors, speed_vmax, splat_radius
+from abmpm.post.render import region_outline
 from abmpm.post.surface import surfaces_of_folder
 from abmpm.scene.model import Scene
 
@@ -94,8 +95,6 @@ def point_size(frame: dict, scene: Scene) -> float:
 
 def region_segments(cells: np.ndarray, origin, dx: float) -> np.ndarray:
     """(K, 2, 3) float32 line segments outlining the refined coarse cells."""
-    from abmpm.post.render import region_outline
-
     return np.asarray(region_outline(cells, origin, float(dx)), dtype=np.float32)
 
 

@@ -20,7 +20,12 @@ from __future__ import annotations
 import math
 import os
 
+import warp as wp
+
 from abmpm.errors import AbmpmError, SceneError
+from abmpm.geometry.sampling import shape_bounds_and_inside
+from abmpm.runtime import cfl_time_step, choose_device
+from abmpm.sim.materials import wave_speed
 
 __all__ = ["memory_estimate", "available_memory", "check_feasible", "GRID_NODE_BYTES", "PARTICLE_BYTES"]
 
@@ -64,8 +69,6 @@ def _clipped_volume(lo, hi, st) -> float:
 
 def _body_bounds(body, scene, i: int, load_meshes: bool):
     """Bounding box of a body, or None for a mesh body when meshes are not loaded."""
-    from abmpm.geometry.sampling import shape_bounds_and_inside
-
     if body.shape == "mesh" and not load_meshes:
         return None
     lo, hi, _ = shape_bounds_and_inside(body, scene.resolve, f"bodies[{i}]")
@@ -123,8 +126,6 @@ def available_memory(device: str | None) -> tuple[int | None, str]:
     the GPU's memory for 'cuda:N'. (None, ...) when unknown."""
     if device and str(device).startswith("cuda"):
         try:
-            import warp as wp
-
             total = int(getattr(wp.get_device(device), "total_memory", 0) or 0)
             if total > 0:
                 return total, f"GPU {device} has"
@@ -134,8 +135,6 @@ def available_memory(device: str | None) -> tuple[int | None, str]:
 
 
 def _resolve_device(scene, device: str | None) -> str:
-    from abmpm.simulation import choose_device
-
     return choose_device(device if device is not None else scene.simulation.device)
 
 
@@ -185,7 +184,6 @@ def check_memory(scene, mode: str | None = None, device: str | None = None, memo
 
 
 def _wave_speed(material) -> float:
-    from abmpm.sim.materials import wave_speed
 
     try:
         c = wave_speed(material)
@@ -228,8 +226,6 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         rot = math.hypot(*b.angular_velocity) * diag
         body_speeds.append((lin + rot, i, "velocity" if lin >= rot else "angular_velocity"))
     v, i, vkey = max(body_speeds)
-    from abmpm.simulation import cfl_time_step
-
     try:
         dt = cfl_time_step(st.cfl, st.max_dt, dx, c + v)
         steps = frame_dt / dt

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, Strict, create_model, field_v
 from ..sim.materials import REGISTRY as MATERIAL_MODELS
 from ..sim.materials.base import MaterialModel
 from ..sim.reconstruct import DEFAULT_SURFACE_THRESHOLD
+from .checks import check_feasible
 
 # Types are strict (a string is not a number, 1 is not true) except that an integer is
 # a valid float (TOML ``dx = 1``) and containers are lax: a vector may be a TOML list or
@@ -503,8 +504,6 @@ class Scene(_Strict):
         """Refuse (SceneError naming the key) a scene that cannot run: its grid or
         particles do not fit in memory, or it cannot be time-stepped. See
         :mod:`abmpm.scene.checks`; nothing is allocated."""
-        from abmpm.scene.checks import check_feasible
-
         check_feasible(self, mode, device)
 
     def material_index(self, name: str) -> int:

@@ -46,12 +46,12 @@ MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 # range of a small adaptive scene (a few thousand particles) ran on one thread.
 # Measured on the quick paper scenes: 1024 -> 512 gave the panel +7%, jelly +2%.
 MIN_TRANSFER_RANGE = 512
-EMPTY_BOUND = 2**31 - 1  # the low end of a private grid's reached range before any P2G
+EMPTY_BOUND = wp.constant(2**31 - 1)  # the low end of a private grid's reached range before any P2G
 # 4-byte words in a 64-byte cache line: per-thread slots that every particle updates
 # (P2G's reached spans, G2P's CFL signal) lie this far apart, or two threads writing
 # one line slow each other down (false sharing)
 CACHE_LINE_WORDS = 16
-REACH_STRIDE = CACHE_LINE_WORDS  # ints between two threads' reached spans
+REACH_STRIDE = wp.constant(CACHE_LINE_WORDS)  # ints between two threads' reached spans
 
 
 def default_threads() -> int:
@@ -71,6 +71,15 @@ def default_threads() -> int:
         return os.cpu_count() or 1
 
 
+@wp.struct
+class Reach:
+    """Where a part's P2G scattered: it widens ``span`` = [lo, hi] to the storage
+    indices it reached, so that ``sum_private_grids`` reads and clears only those."""
+
+    track: int  # 0: record nothing (part 0, which adds to the grid itself; CUDA)
+    span: wp.array(dtype=wp.int32)  # [lo, hi], empty when lo > hi
+
+
 @dataclass
 class PrivateGrids:
     """The P2G accumulators of a grid's extra threads, stacked: thread t >= 1 adds
@@ -84,7 +93,7 @@ class PrivateGrids:
     # the storage indices part t's P2G reached, [lo, hi] at REACH_STRIDE t + (0, 1) (empty: lo > hi):
     # the grid update adds and clears only those of each private grid
     bounds: wp.array
-    bound_parts: list[wp.array]  # part t's view of ``bounds``
+    reach: list[Reach]  # part t's P2G argument: its view of ``bounds``, tracking for t >= 1
 
 
 @dataclass
@@ -225,11 +234,61 @@ class Launcher:
             bounds = wp.array(np.tile([EMPTY_BOUND, -1] + [0] * (REACH_STRIDE - 2), extra + 1), dtype=wp.int32,
                               device=self.device)
             grids = self._private[grid_key] = PrivateGrids(stacked_mv, stacked_m, stride, extra, parts, bounds,
-                                                           [bounds[REACH_STRIDE * t:REACH_STRIDE * t + 2]
-                                                            for t in range(extra + 1)])
+                                                           [_reach(bounds, t) for t in range(extra + 1)])
         grids.parts[0] = (mv, m)
         return grids
+
+    def sum_private_grids(self, grids: PrivateGrids, count: int, label: str) -> None:
+        """Add the extra parts' P2G sums to the grid's own (nodes ``[0, count)``), in a
+        fixed order, and clear them and their reach for the next step. CPU only: on
+        CUDA, and with one thread, every part adds to the grid itself."""
+        if grids.extra == 0:
+            return
+        mv, m = grids.parts[0]
+        self.launch(sum_private_grids, -(-count // NODE_CHUNK),
+                    [mv, m, grids.mv, grids.m, grids.extra, grids.stride, grids.bounds, count], label=label,
+                    min_range=64)
+        self.launch(reset_reach, grids.extra + 1, [grids.bounds], label=label)
 
     def private_arrays(self) -> list[wp.array]:
         """Every private accumulator allocated so far."""
         return [a for grids in self._private.values() for a in (grids.mv, grids.m, grids.bounds)]
+
+
+def _reach(bounds: wp.array, part: int) -> Reach:
+    r = Reach()
+    r.track = int(part > 0)
+    r.span = bounds[REACH_STRIDE * part:REACH_STRIDE * part + 2]
+    return r
+
+
+# nodes per kernel thread of the node passes on the CPU: Warp's CPU backend spends a
+# few ns per kernel thread, as much as adding a node's private sums
+NODE_CHUNK = wp.constant(64)
+
+
+@wp.kernel
+def sum_private_grids(first: int, grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float),
+                      private_mv: wp.array(dtype=wp.vec3), private_m: wp.array(dtype=float), extra: int, stride: int,
+                      bounds: wp.array(dtype=wp.int32), count: int):
+    # nodes [n0, n1): add the extra parts' sums in part order, only where each part's
+    # P2G reached, and clear them
+    n0 = (wp.tid() + first) * NODE_CHUNK
+    n1 = wp.min(n0 + NODE_CHUNK, count)
+    for t in range(extra):
+        lo = wp.max(n0, bounds[REACH_STRIDE * (t + 1)])
+        hi = wp.min(n1 - 1, bounds[REACH_STRIDE * (t + 1) + 1])
+        for n in range(lo, hi + 1):
+            q = t * stride + n
+            grid_mv[n] = grid_mv[n] + private_mv[q]
+            grid_m[n] = grid_m[n] + private_m[q]
+            private_mv[q] = wp.vec3(0.0)
+            private_m[q] = 0.0
+
+
+@wp.kernel
+def reset_reach(first: int, bounds: wp.array(dtype=wp.int32)):
+    # after the sums: every part's span empty again
+    t = wp.tid() + first
+    bounds[REACH_STRIDE * t] = EMPTY_BOUND
+    bounds[REACH_STRIDE * t + 1] = -1

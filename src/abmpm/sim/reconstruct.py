@@ -48,7 +48,7 @@ import warp as wp
 from .grid import GridSpec, nearest_node_coords, node_coords, node_index
 from .materials import MaterialParams, volume_ratio
 from .state import ParticleArrays
-from .transfer import bspline_weights, stencil_base, stencil_offset
+from .stencil import bspline_weights, stencil_base, stencil_offset
 
 wp.set_module_options({"enable_backward": False})
 

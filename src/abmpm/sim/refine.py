@@ -31,7 +31,7 @@ from .reconstruct import (
     smooth_surface_volume,
 )
 from .state import ParticleArrays, ParticleState
-from .transfer import stencil_base
+from .stencil import stencil_base
 
 wp.set_module_options({"enable_backward": False})
 

@@ -32,7 +32,6 @@ Everything else (sampling, output, diagnostics, time stepping) lives outside.
 
 from __future__ import annotations
 
-import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -40,21 +39,23 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from . import transfer
+from . import collider_set as collider_host
+from . import colliders as collider_kernels
+from . import grid_update as node_pass_kernels
+from . import parallel, reconstruct, refine, sorting
 from .boundary import FACES
-from .colliders import (
-    ColliderSet,
-    color_field,
-    color_particles,
-    empty_colliders,
-    grow_color_field,
-)
+from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_field
+from .colliders import color_particles
+from .g2p import g2p_kernel
 from .grid import Grid
+from .grid_update import CPU_NODE_CHUNK, grid_update
 from .materials import MaterialParams, model_ids
-from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, Launcher
+from .p2g import p2g_kernel
+from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, Launcher, reset_reach, sum_private_grids
 from .reconstruct import DEFAULT_SURFACE_THRESHOLD
 from .refine import REFINE_EVERY, Refiner
-from .state import DTYPES, DYNAMIC, FIELDS, ParticleArrays, ParticleState
+from .sorting import level_ranges, sort_by_cell
+from .state import DYNAMIC, FIELDS, ParticleState
 
 wp.set_module_options({"enable_backward": False})
 
@@ -63,8 +64,10 @@ wp.set_module_options({"enable_backward": False})
 SEGMENT_MAX = REFINE_EVERY
 SIGNAL_STRIDE = CACHE_LINE_WORDS  # floats between two CFL signal slots
 
-# how a profile names the P2G passes (only_level -> suffix)
-_P2G_PASS = {-1: "", 0: " (level 0)", 1: " (level 1, overlap)"}
+# the P2G passes (sim/p2g.py): which particles each visits (a level, or None for
+# all) and how a profile names it
+_P2G_LEVEL = {"dense": None, "level0": 0, "overlap": 1, "sparse": None}
+_P2G_LABEL = {"dense": "", "level0": " (level 0)", "overlap": " (level 1, overlap)", "sparse": ""}
 
 
 @dataclass
@@ -141,7 +144,7 @@ class MPMSolver:
         # is one contiguous range and its transfers run over it alone: equal work per
         # CPU thread, no pass over particles that would return at once. Checked at
         # every host point; unsorted particles get one range over all.
-        self._partition = wp.zeros(2, dtype=wp.int32, device=device)
+        self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
         self._segment = 0  # substeps in the current segment
@@ -164,12 +167,17 @@ class MPMSolver:
         on first use, in a module of its own: ``load_kernels`` loads them all before
         the first segment, so that a level reached only later in the run (the fine
         grid's) never compiles in the middle of it."""
-        kernels = [transfer.reset_reach, transfer.grid_update]
-        for g in self.grids:
-            kernels.append(transfer.g2p_kernel(self.cpic, g.sparse, self.models))
-            kernels += [transfer.p2g_kernel(self.cpic, g.sparse, overlap, self.models)
-                        for overlap in ((False, True) if not g.sparse else (False,))]
+        kernels = [reset_reach, sum_private_grids, grid_update]
+        kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
+        kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
         return kernels
+
+    def p2g_passes(self) -> list[tuple[str, Grid]]:
+        """The P2G passes of a substep (sim/p2g.py), in order, with their grid."""
+        if self.refiner is None:
+            return [("dense", self.grid)]
+        coarse, fine = self.grids
+        return [("level0", coarse), ("overlap", coarse), ("sparse", fine)]
 
     def load_kernels(self) -> None:
         """Load, compiling where the kernel cache lacks them, the kernel modules this
@@ -178,12 +186,9 @@ class MPMSolver:
         so that compiling is not counted as simulation time."""
         if self._kernels_loaded:
             return
-        from . import colliders as collider_kernels
-        from . import reconstruct, refine
-
-        modules = [transfer, sys.modules[__name__]]
+        modules = [node_pass_kernels, parallel, sorting]
         if self.colliders is not None:
-            modules.append(collider_kernels)
+            modules += [collider_kernels, collider_host]
         if self.refiner is not None:
             modules += [refine, reconstruct]
         for module in modules:
@@ -287,17 +292,9 @@ class MPMSolver:
         them all."""
         if self._substep >= self._segment:
             raise RuntimeError("the segment is complete: call begin_segment first")
-        if self.refiner is None:  # 4. P2G (Eqs. 8-10)
-            self._p2g(state, self.grid)
-        else:
-            coarse, fine = self.grids
-            self._p2g(state, coarse, only_level=0, overlap=1)
-            self._p2g(state, coarse, only_level=1, overlap=2)
-            self._p2g(state, fine)  # every level: level-0 particles reach the fine blocks too
-        for g in self.grids:  # 5. grid update (Eqs. 3-4, 22)
-            self._grid_update(g)
-        for g in self.grids:  # 6. G2P (Eqs. 11-14, 23-25), CFL signal into this substep's slot
-            self._g2p(state, g, self._signal_slots[self._substep])
+        self.p2g(state)  # 4. P2G (Eqs. 8-10)
+        self.grid_update()  # 5. grid update (Eqs. 3-4, 22)
+        self.g2p(state, self._signal_slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
         self._substep += 1
         self._steps += 1
 
@@ -358,18 +355,9 @@ class MPMSolver:
         self._find_level_ranges(state)
 
     def _find_level_ranges(self, state: ParticleState) -> None:
-        # adaptive mode: one small read per host point says whether the particles are
-        # partitioned by level (a sort by (level, cell) leaves them so) and where
-        n = state.count
-        full = [(0, n)]
-        self._ranges = {None: full, **{g.level: full for g in self.grids}}
-        if self.refiner is None or n == 0:
-            return
-        self._partition.zero_()
-        wp.launch(_level_partition, n, inputs=[state.level, self._partition], device=self.device)
-        level0, unordered = (int(v) for v in self._partition.numpy())
-        if unordered == 0:
-            self._ranges = {0: [(0, level0)], 1: [(level0, n - level0)], None: [(0, level0), (level0, n - level0)]}
+        # adaptive mode: where each level's particles lie (one range per level once
+        # sorted by level; else every range over all particles)
+        self._ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
 
     def _graph_buffer_key(self, state: ParticleState) -> tuple:
         # what a captured substep has baked in: launch sizes and every buffer's address
@@ -398,41 +386,45 @@ class MPMSolver:
             self.launcher.serial = False
         return capture.graph
 
-    def _p2g(self, s: ParticleState, g: Grid, only_level: int = -1, overlap: int = 0) -> None:
-        # with a second grid, the coarse P2G keeps each particle's stress for it
-        store = len(self.grids) > 1 and not g.sparse
-        # each CPU thread scatters into its own accumulators, which the grid update adds up
-        private = self.launcher.private_grids(g.level, g.mv, g.m)
-        common = [s.arrays(), self._cmask, self.materials, g.spec, g.color, self._dt, self._tau, int(store),
-                  only_level, overlap, self._occupied(g)]
-        label = f"P2G {g.name}{_P2G_PASS[only_level]}"
-        for site, (first, count) in enumerate(self._ranges[only_level if only_level >= 0 else None]):
-            self.launcher.launch(transfer.p2g_kernel(self.cpic, g.sparse, only_level >= 0, self.models), count,
-                                 lambda part, first, count: [*common, *private.parts[part], int(part > 0),
-                                                             private.bound_parts[part]],
-                                 start=first, label=label, min_range=MIN_TRANSFER_RANGE, site=site)
+    # ------------------------------------------------------------------ the passes
 
-    def _occupied(self, g: Grid):
-        # the coarse grid's occupancy in adaptive mode, else a placeholder
-        return self._occ if self.refiner is not None and not g.sparse else self._no_occ
+    def p2g(self, s: ParticleState) -> None:
+        """Every particle to every grid (Eqs. 8-10), pass by pass (``p2g_passes``)."""
+        for name, g in self.p2g_passes():
+            private = self.launcher.private_grids(g.level, g.mv, g.m)  # a CPU part's own sums
+            kernel = p2g_kernel(name, self.cpic, self.models)
+            common = [s.arrays(), self.materials, g.spec, g.color, self._dt, self._cmask]
+            kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ],
+                    "sparse": [self._tau]}[name]  # the stress kept for the fine pass; the overlap marks
+            for site, (first, count) in enumerate(self._ranges[_P2G_LEVEL[name]]):
+                self.launcher.launch(kernel, count,
+                                     lambda part, first, count: [*common, *private.parts[part],
+                                                                 private.reach[part], *kept],
+                                     start=first, label=f"P2G {g.name}{_P2G_LABEL[name]}",
+                                     min_range=MIN_TRANSFER_RANGE, site=site)
 
-    def _grid_update(self, g: Grid) -> None:
-        private = self.launcher.private_grids(g.level, g.mv, g.m)
-        chunk = 1 if self.launcher.device.is_cuda else transfer.CPU_NODE_CHUNK
-        self.launcher.launch(transfer.grid_update, -(-g.node_count // chunk),
-                             [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v, self._occupied(g),
-                              int(self.refiner is not None and not g.sparse), g.node_count, chunk,
-                              private.mv, private.m, private.extra, private.stride, private.bounds],
-                             label=f"grid update {g.name}", min_range=64)
-        if private.extra > 0:
-            self.launcher.launch(transfer.reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
+    def grid_update(self) -> None:
+        """Momentum to velocity, gravity, contact and walls on every grid (Eqs. 3-4, 22)."""
+        chunk = 1 if self.launcher.device.is_cuda else CPU_NODE_CHUNK
+        for g in self.grids:
+            private = self.launcher.private_grids(g.level, g.mv, g.m)
+            self.launcher.sum_private_grids(private, g.node_count, f"thread sums {g.name}")
+            coarse_adaptive = self.refiner is not None and not g.sparse
+            self.launcher.launch(grid_update, -(-g.node_count // chunk),
+                                 [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
+                                  self._occ if coarse_adaptive else self._no_occ, int(coarse_adaptive),
+                                  g.node_count, chunk],
+                                 label=f"grid update {g.name}", min_range=64)
 
-    def _g2p(self, s: ParticleState, g: Grid, signal_slots: list) -> None:
-        common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
-        for site, (first, count) in enumerate(self._ranges[g.level]):
-            self.launcher.launch(transfer.g2p_kernel(self.cpic, g.sparse, self.models), count,
-                                 lambda part, first, count: [*common, signal_slots[part]], start=first,
-                                 label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
+    def g2p(self, s: ParticleState, signal_slots: list) -> None:
+        """Each particle from its own level's grid (Eqs. 11-14, 23-25); its speed and
+        stiffening into ``signal_slots`` (one per CPU part)."""
+        for g in self.grids:
+            kernel = g2p_kernel(g.sparse, self.cpic, self.models)
+            common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
+            for site, (first, count) in enumerate(self._ranges[g.level]):
+                self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
+                                     start=first, label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
@@ -499,61 +491,4 @@ class MPMSolver:
     def sort_by_cell(self, state: ParticleState) -> None:
         """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
         device); in adaptive mode by level first, so that each level is one range."""
-        n = state.count
-        if n == 0:
-            return
-        keys = wp.empty(2 * n, dtype=wp.int32, device=self.device)
-        perm = wp.empty(2 * n, dtype=wp.int32, device=self.device)
-        by_level = int(self.refiner is not None)
-        self.launcher.launch(_cell_keys, n, [state.x, state.level, by_level, self.grid.spec, keys, perm])
-        wp.utils.radix_sort_pairs(keys, perm, n)
-        if self._sorted is None or self._sorted.capacity < n:
-            self._sorted = ParticleState(**{name: wp.empty(state.capacity, dtype=DTYPES[name], device=self.device)
-                                            for name in FIELDS})
-        self.launcher.launch(_permute, n, [state.arrays(), perm, self._sorted.arrays()])
-        for name in FIELDS:
-            wp.copy(getattr(state, name), getattr(self._sorted, name), count=n)
-
-
-@wp.kernel
-def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
-               g: transfer.GridSpec, keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32)):
-    p = wp.tid() + first
-    b = transfer.stencil_base(g, x[p])
-    keys[p] = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
-    if by_level != 0:
-        keys[p] = keys[p] + level[p] * g.dims[0] * g.dims[1] * g.dims[2]
-    perm[p] = p
-
-
-@wp.kernel
-def _level_partition(level: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.int32)):
-    # out[0]: level-0 particles; out[1]: places where a level-0 particle follows a
-    # level-1 one (0 when the particles are partitioned by level). One thread on the CPU.
-    p = wp.tid()
-    if level[p] == 0:
-        wp.atomic_add(out, 0, 1)
-        if p > 0:
-            if level[p - 1] != 0:
-                wp.atomic_add(out, 1, 1)
-
-
-@wp.kernel
-def _permute(first: int, src: ParticleArrays, perm: wp.array(dtype=wp.int32), dst: ParticleArrays):
-    # dst[p] = src[perm[p]], every field in one pass
-    p = wp.tid() + first
-    q = perm[p]
-    dst.x[p] = src.x[q]
-    dst.v[p] = src.v[q]
-    dst.C[p] = src.C[q]
-    dst.F[p] = src.F[q]
-    dst.history[p] = src.history[q]
-    dst.surface_point[p] = src.surface_point[q]
-    dst.surface_side[p] = src.surface_side[q]
-    dst.surface_body[p] = src.surface_body[q]
-    dst.mass[p] = src.mass[q]
-    dst.volume[p] = src.volume[q]
-    dst.material[p] = src.material[q]
-    dst.level[p] = src.level[q]
-    dst.id[p] = src.id[q]
-    dst.family[p] = src.family[q]
+        self._sorted = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher, self._sorted)

@@ -32,8 +32,9 @@ The modules, each name below re-exported here:
 * :mod:`~abmpm.sweep.cluster`: everything Ray (import, reachability of an address,
   connecting, the loop of Ray tasks).
 
-The local loop and the Ray task call ``run_one`` as it is in this package
-(``abmpm.sweep.run_one``), so replacing it here takes effect.
+The local loop and the Ray task call ``run_one`` as it is in
+:mod:`~abmpm.sweep.execute` (``abmpm.sweep.execute.run_one``), so replacing it
+there takes effect.
 """
 
 from abmpm.sweep.cluster import RAY_MISSING, import_ray

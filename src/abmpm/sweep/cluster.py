@@ -5,7 +5,9 @@ task and collects the rows as they finish."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import socket
 from typing import Any
 
 from abmpm.errors import AbmpmError
@@ -33,8 +35,6 @@ def _reachable(address: str, timeout: float = 5.0) -> bool | None:
     """Whether something listens at ``host:port`` (``ray://host:port`` too); None when
     the address is not of that form. Ray itself retries an unreachable address for
     many minutes."""
-    import socket
-
     text = address.split("://", 1)[-1].rstrip("/")
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not host:
@@ -67,8 +67,6 @@ def _init_ray(ray, address: str) -> bool:
     ``local``: always a new local instance. Anything else is a cluster address
     (``host:6379``, ``ray://host:10001``).
     """
-    import logging
-
     if ray.is_initialized():
         return False
     addr: str | None = address
@@ -104,19 +102,10 @@ def _ray_device(ray, device: str | None, scene) -> tuple[str, int]:
     return ("cuda", 1) if str(want).startswith("cuda") else (str(want), 0)
 
 
-def _ray_run_one(*args, **kwargs) -> dict[str, Any]:
-    """run_one in a Ray worker: Warp quiet, as under the CLI."""
-    from abmpm.cli import _quiet_warp
-
-    from abmpm import sweep  # run_one as abmpm.sweep has it (a worker imports it afresh)
-
-    _quiet_warp()
-    return sweep.run_one(*args, **kwargs)
-
-
-def _sweep_on_ray(ray, plan, out, frames, device, threads, preview, on_start, done) -> None:
-    """Submit every combination as a Ray task; hand each row to ``done`` as it comes."""
-    remote = ray.remote(_ray_run_one)
+def _sweep_on_ray(ray, task, plan, out, frames, device, threads, preview, on_start, done) -> None:
+    """Submit every combination as a Ray task running ``task`` (``run_one``'s
+    arguments); hand each row to ``done`` as it comes."""
+    remote = ray.remote(task)
     pending: dict[Any, int] = {}
     n = len(plan.runs)
     for i, (name, combo) in enumerate(plan.runs):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import json
 import os
 import time
 import traceback
@@ -14,6 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from abmpm.errors import AbmpmError, SimulationBlowUp
+from abmpm.io.atomic import atomic_write
+from abmpm.io.outdir import prepare_out_dir
+from abmpm.io.summary import write_json
+from abmpm.runner import run
+from abmpm.runtime import init_warp_silently
 from abmpm.sweep.cluster import _init_ray, _sweep_on_ray, import_ray
 from abmpm.sweep.plan import SweepPlan, feasible_on, format_value, plan_sweep, scene_source
 
@@ -89,8 +95,6 @@ def headline(summary: Mapping | None) -> dict[str, Any]:
 
 
 def _read_summary(out: Path) -> dict | None:
-    import json
-
     try:
         return json.loads((out / "summary.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -112,8 +116,6 @@ def run_one(
     ``run``, the set values, ``status`` (completed, blew_up or error), ``message`` and
     the headline figures of its summary. A blow-up or an error is recorded, not raised
     (KeyboardInterrupt is)."""
-    from abmpm.runner import run
-
     out = Path(out)
     row: dict[str, Any] = {"run": name or out.name, **dict(overrides), "status": "error", "message": None}
     summary = None
@@ -162,9 +164,6 @@ def _csv_cell(value: Any) -> str:
 
 def write_results(out_dir: str | os.PathLike, rows: Sequence[Mapping], meta: Mapping[str, Any]) -> tuple[Path, Path]:
     """``sweep.csv`` and ``sweep.json`` in ``out_dir`` (atomic writes)."""
-    from abmpm.io.atomic import atomic_write
-    from abmpm.io.summary import write_json
-
     out = Path(out_dir)
     keys = list(meta.get("set", {}))
     cols = columns(rows, keys)
@@ -220,8 +219,6 @@ def run_sweep(
 
 
 def _sweep(plan, out, frames, device, threads, preview, ray, ray_mod, on_start, on_done) -> list[dict]:
-    from abmpm.io.outdir import prepare_out_dir
-
     prepare_out_dir(out)
     n = len(plan.runs)
     meta: dict[str, Any] = {
@@ -242,16 +239,20 @@ def _sweep(plan, out, frames, device, threads, preview, ray, ray_mod, on_start, 
             on_done(i + 1, n, row)
 
     if ray_mod is None:
-        from abmpm import sweep  # run_one as abmpm.sweep has it now (where it is replaced in tests)
-
         for i, (name, combo) in enumerate(plan.runs):
             if on_start:
                 on_start(i + 1, n, name)
-            done(i, sweep.run_one(plan.source, combo, out / name, frames=frames, device=device,
-                                  threads=threads, preview=preview, name=name))
+            done(i, run_one(plan.source, combo, out / name, frames=frames, device=device,
+                            threads=threads, preview=preview, name=name))
     else:
-        _sweep_on_ray(ray_mod, plan, out, frames, device, threads, preview, on_start, done)
+        _sweep_on_ray(ray_mod, _ray_run_one, plan, out, frames, device, threads, preview, on_start, done)
     final = [r for r in rows if r is not None]
     meta["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     write_results(out, final, meta)
     return final
+
+
+def _ray_run_one(*args, **kwargs) -> dict[str, Any]:
+    """run_one in a Ray worker: Warp quiet, as under the CLI."""
+    init_warp_silently()
+    return run_one(*args, **kwargs)

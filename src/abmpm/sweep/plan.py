@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from abmpm.errors import AbmpmError, SceneError
-
+from abmpm.scene.loader import read_scene_document, scene_from_dict
+from abmpm.scene.model import Scene
 
 # --------------------------------------------------------------------------- parsing
 
@@ -157,8 +158,6 @@ class SceneSource:
 
     def build(self, overrides: Mapping[str, Any] | None = None, label: str | None = None):
         """The validated Scene with ``overrides`` ({key: value}) applied."""
-        from abmpm.scene.loader import scene_from_dict
-
         data = apply_overrides(self.data, overrides or {})
         return scene_from_dict(data, label=label or self.label, base_dir=self.base_dir,
                                default_name=self.default_name)
@@ -167,9 +166,6 @@ class SceneSource:
 def scene_source(scene) -> SceneSource:
     """A SceneSource from a SceneSource, a Scene, a plain dict, a ``.toml`` path or a
     built-in name (the file is validated as it is first: its own errors come first)."""
-    from abmpm.scene.loader import read_scene_document
-    from abmpm.scene.model import Scene
-
     if isinstance(scene, SceneSource):
         return scene
     if isinstance(scene, Scene):

@@ -32,6 +32,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from abmpm.io.progress import Progress
+from abmpm.post.preview import disk_frames
 from abmpm.scene.model import Scene
 
 __all__ = ["FrameData", "FrameStore", "RunContext", "Writer"]
@@ -97,8 +98,6 @@ class FrameStore:
     def source(self, last: int) -> list:
         """[(frame, loader)] of the output frames up to ``last``."""
         if self.on_disk:
-            from abmpm.post.preview import disk_frames
-
             return disk_frames(self.out, last)
         return [(n, (lambda f=f: f)) for n, f in self._kept if n <= last]
 

@@ -11,6 +11,7 @@ import time
 from abmpm.errors import OutputError
 from abmpm.io.outdir import BEAUTY_FILE, BEAUTY_POSTER_FILE
 from abmpm.io.writers.base import RunContext, Writer
+from abmpm.post.beauty import BeautySettings, render_beauty
 
 INSTALL_HINT = 'output.beauty = true needs Mitsuba 3: pip install -e ".[render]"'
 
@@ -34,7 +35,6 @@ class BeautyWriter(Writer):
     def finish(self, run: RunContext) -> None:
         if run.interrupted:
             return
-        from abmpm.post.beauty import BeautySettings, render_beauty
 
         t0 = time.perf_counter()
         info = render_beauty(run.out, self.settings or BeautySettings(), bar=run.progress)

@@ -8,6 +8,7 @@ import time
 
 from abmpm.io.outdir import POSTER_FILE, PREVIEW_FILE
 from abmpm.io.writers.base import FrameData, RunContext, Writer
+from abmpm.post.preview import ColliderTrack, render_preview
 
 
 class PreviewWriter(Writer):
@@ -19,8 +20,6 @@ class PreviewWriter(Writer):
         # are kept in memory
         self.track = None
         if not run.frames.on_disk and run.collider_mesh is not None:
-            from abmpm.post.preview import ColliderTrack
-
             self.track = ColliderTrack(*run.collider_mesh)
 
     def write_frame(self, frame: int, data: FrameData) -> None:
@@ -33,7 +32,6 @@ class PreviewWriter(Writer):
     def finish(self, run: RunContext) -> None:
         if run.interrupted:
             return
-        from abmpm.post.preview import render_preview
 
         t0 = time.perf_counter()
         source = run.frames.source(run.last_frame)

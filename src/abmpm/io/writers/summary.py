@@ -6,10 +6,13 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import warp as wp
 
+import abmpm
 from abmpm.io.outdir import ENERGY_FILE, SCENE_FILE, SUMMARY_FILE, numbered_outputs
 from abmpm.io.summary import write_json
 from abmpm.io.writers.base import RunContext, Writer
+from abmpm.post.plots import plot_energy
 
 SERIES = ("time", "steps", "kinetic_energy", "potential_energy", "total_mass", "momentum", "max_speed",
           "count_per_level")
@@ -27,16 +30,7 @@ def series(history: list[dict], clock: dict[int, float] | None = None) -> dict[s
 
 
 def versions() -> dict[str, str]:
-    import abmpm
-
-    out = {"abmpm": getattr(abmpm, "__version__", "?"), "numpy": np.__version__}
-    try:
-        import warp as wp
-
-        out["warp"] = wp.config.version
-    except Exception:  # pragma: no cover
-        pass
-    return out
+    return {"abmpm": getattr(abmpm, "__version__", "?"), "numpy": np.__version__, "warp": wp.config.version}
 
 
 def make_summary(
@@ -82,7 +76,6 @@ class EnergyPlotWriter(Writer):
     def finish(self, run: RunContext) -> None:
         if run.interrupted:
             return
-        from abmpm.post.plots import plot_energy
 
         title = f"{run.scene.name}: energy and conservation"
         plot_energy(run.summary["series"], run.out / ENERGY_FILE, title=title)

@@ -12,7 +12,12 @@ import numpy as np
 
 from abmpm.errors import OutputError
 from abmpm.io.outdir import USD_FILE
+from abmpm.io.ply import read_mesh_ply
+from abmpm.io.usd import UsdStageWriter
 from abmpm.io.writers.base import FrameData, RunContext, Writer
+from abmpm.post.colors import colors_by_material
+from abmpm.post.preview import ColliderTrack, material_densities, particle_colors, speed_vmax, splat_radius
+from abmpm.post.surface import file_stem, surfaces_of_folder
 from abmpm.scene.model import Scene
 
 COLLIDER_COLOR = (0.6, 0.6, 0.65)
@@ -22,12 +27,6 @@ def write_usd(path: Path, scene: Scene, source, colliders=None, surfaces=None) -
     """Write the frames of ``source`` [(frame, loader)] to the USD file ``path``, with
     ``colliders`` {frame: (vertices, faces)} and ``surfaces`` {frame: {material: PLY
     path}} (see :func:`abmpm.post.surface.surfaces_of_folder`) where given."""
-    from abmpm.io.ply import read_mesh_ply
-    from abmpm.io.usd import UsdStageWriter
-    from abmpm.post.colors import colors_by_material
-    from abmpm.post.preview import material_densities, particle_colors, speed_vmax, splat_radius
-    from abmpm.post.surface import file_stem
-
     densities = material_densities(scene)
     vmax = speed_vmax(source) if scene.output.color_by == "speed" else None
     colliders = colliders or {}
@@ -61,8 +60,6 @@ class UsdWriter(Writer):
         # the colliders' vertices of every output frame (one array while they rest)
         self.track = None
         if run.collider_mesh is not None:
-            from abmpm.post.preview import ColliderTrack
-
             self.track = ColliderTrack(*run.collider_mesh)
 
     def write_frame(self, frame: int, data: FrameData) -> None:
@@ -74,7 +71,6 @@ class UsdWriter(Writer):
     def finish(self, run: RunContext) -> None:
         if run.interrupted:
             return
-        from abmpm.post.surface import surfaces_of_folder
 
         t0 = time.perf_counter()
         source = run.frames.source(run.last_frame)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from abmpm.io.outdir import frame_path
 from abmpm.io.writers.base import FrameData, RunContext, Writer
+from abmpm.post.viewer import Viewer, need_viser
 
 
 @dataclass(frozen=True)
@@ -29,15 +30,11 @@ class ViewerWriter(Writer):
     name = "view"
 
     def __init__(self, options: ViewOptions | bool | None = None):
-        from abmpm.post.viewer import need_viser
-
         need_viser("abmpm run --view")  # refuse before the run starts
         self.options = options if isinstance(options, ViewOptions) else ViewOptions()
         self.viewer = None
 
     def begin(self, run: RunContext) -> None:
-        from abmpm.post.viewer import Viewer
-
         o = self.options
         self.viewer = Viewer(run.out, scene=run.scene, live=True, host=o.host, port=o.port)
         self.sim, self.out, self.on_disk = run.sim, run.out, run.frames.on_disk

@@ -1,0 +1,59 @@
+"""What the commands of ``abmpm`` share: exit codes, the consoles, argument types."""
+
+from __future__ import annotations
+
+import argparse
+
+from rich.console import Console
+from rich.markup import escape
+
+EXIT_OK = 0
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def stdout_console() -> Console:
+    """Results (tables, the summary) go to stdout."""
+    return Console(highlight=False)
+
+
+def stderr_console() -> Console:
+    """Progress and messages go to stderr."""
+    return Console(stderr=True, highlight=False)
+
+
+def esc(text) -> str:
+    """User text (paths, names, messages) printed through rich: '[' is not markup."""
+    return escape(str(text))
+
+
+def positive_int(text: str, what: str) -> int:
+    """An argparse type: a whole number of ``what``, at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
+def threads_arg(text: str) -> int:
+    """--threads N"""
+    return positive_int(text, "threads")
+
+
+def frames_arg(text: str) -> int:
+    """--frames N"""
+    return positive_int(text, "frames")
+
+
+def port_arg(text: str) -> int:
+    """--port N: 0 (any free port) to 65535."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= n <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is between 0 and 65535, got {n}")
+    return n

@@ -1,0 +1,83 @@
+"""What every layer above ``sim/`` needs of the machine: Warp started once and
+quietly, the device a run asks for, and the CFL formula.
+
+``scene/`` (its feasibility checks) and ``simulation.py`` both import this; it
+imports nothing of abmpm but the errors, so neither has to import the other.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import warp as wp
+
+from .errors import AbmpmError
+
+VERBOSE_ENV = "ABMPM_VERBOSE"  # set: Warp's own start-up and module-load messages stay on
+DEBUG_ENV = "ABMPM_WARP_DEBUG"  # set: Warp's debug build (every array access bounds-checked; slow)
+
+_warp_ready = False
+
+
+def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float) -> float:
+    """dt = min(max_dt, cfl dx / (wave speed + particle speed)): a signal crosses at
+    most ``cfl`` of a cell per step."""
+    return min(max_dt, cfl * dx / signal_speed)
+
+
+def init_warp() -> None:
+    """Start Warp once: quiet unless ``ABMPM_VERBOSE``, its debug build under
+    ``ABMPM_WARP_DEBUG``."""
+    global _warp_ready
+    if _warp_ready:
+        return
+    if not os.environ.get(VERBOSE_ENV) and hasattr(wp, "LOG_WARNING"):
+        wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no module-load chatter
+    wp.config.quiet = True
+    if os.environ.get(DEBUG_ENV):
+        wp.config.mode = "debug"
+        wp.config.verify_fp = False
+    wp.init()
+    _warp_ready = True
+
+
+def init_warp_silently() -> None:
+    """``init_warp`` with the process's stderr muted while Warp starts: its native code
+    prints "could not load the CUDA driver" on every start on a machine without a GPU
+    (``abmpm info`` says the same in plain words). For the command line and workers."""
+    if os.environ.get(VERBOSE_ENV):
+        init_warp()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            try:
+                init_warp()
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
+def choose_device(requested: str | None) -> str:
+    """'cuda' when a GPU is present, else 'cpu'; an explicit request is honoured or refused."""
+    init_warp()
+    has_cuda = wp.get_cuda_device_count() > 0
+    if requested in (None, "", "auto"):
+        return "cuda:0" if has_cuda else "cpu"
+    if requested == "cpu":
+        return "cpu"
+    if requested.startswith("cuda"):
+        if not has_cuda:
+            raise AbmpmError(f"device {requested!r} requested but no CUDA device is available (use 'cpu')")
+        if requested == "cuda":
+            return "cuda:0"
+        index = requested[len("cuda:"):]
+        count = wp.get_cuda_device_count()
+        if not requested.startswith("cuda:") or not index.isdigit() or int(index) >= count:
+            raise AbmpmError(f"unknown device {requested!r}: this machine has cuda:0 to cuda:{count - 1}")
+        return requested
+    raise AbmpmError(f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')")

@@ -1,0 +1,176 @@
+"""Grid to particle (paper Eqs. 5-7, 11-14, 23-25): one pass per level.
+
+A particle gathers velocity and its affine matrix from its own level's grid only
+(Eqs. 11-12): ``g2p_dense`` on the coarse grid (or the single grid of the original
+and finest modes), ``g2p_sparse`` on the fine block-sparse grid. With colliders an
+incompatible node lends the particle's boundary velocity instead of its own
+(Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
+deformation update and the material's return mapping (Eqs. 7, 13-14), and the
+particle's speed and sound-speed stiffening into the CFL signal.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from .colliders import (
+    ALL_NODES,
+    PARTICLE_BAND,
+    ColliderArrays,
+    Color,
+    ColorField,
+    boundary_velocity,
+    color_point,
+    near_surface,
+    node_bit,
+    rigid_velocity,
+    stop_crossing,
+)
+from .grid import GridSpec
+from .materials import ALL_MODELS, MaterialParams, dispatch
+from .state import ParticleArrays
+from .stencil import STORAGE, offset_at, weight_at
+from .variant import variant
+
+wp.set_module_options({"enable_backward": False})
+
+FAST = wp.constant(1.0e30)  # m/s: the speed a non-finite velocity reports
+
+
+@wp.func
+def clamp_to_domain(g: GridSpec, x: wp.vec3):
+    # Nodes on and beyond the wall planes enforce the walls, so a particle can sink at
+    # most ~dx/2 into a wall before they stop it; the clamp one cell out is only a
+    # safety net. It comes before the collider test, so that the clamp can never move
+    # a particle through a surface after that test has stopped it.
+    lo = g.domain_lo - wp.vec3(g.dx)
+    hi = g.domain_hi + wp.vec3(g.dx)
+    return wp.vec3(wp.clamp(x[0], lo[0], hi[0]), wp.clamp(x[1], lo[1], hi[1]), wp.clamp(x[2], lo[2], hi[2]))
+
+
+@wp.func
+def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, s: ParticleArrays, p: int, xp: wp.vec3,
+           xn: wp.vec3, new_v: wp.vec3, dt: float):
+    """CPIC advection from xp to xn: stop at the surface on the particle's own side,
+    and color the particle for the next step. Returns (position, velocity)."""
+    # A particle farther from every surface than it moves (relative to the collider)
+    # cannot cross one: only the others cast the ray. A particle outside the band
+    # casts one only if it moved farther than the band (a CFL violation).
+    x_end = xn
+    v_end = new_v
+    cb = s.surface_body[p]
+    reach = PARTICLE_BAND * g.dx
+    dist = PARTICLE_BAND * g.dx
+    side = xp - xn  # on the surface with no remembered side: it came from behind its motion
+    move = wp.length(xn - xp)
+    if cb >= 0:
+        move = move + dt * wp.length(rigid_velocity(colliders.bodies[cb], xp))
+        dist = wp.length(xp - s.surface_point[p])
+        reach = dist + move + 0.01 * g.dx
+        side = s.surface_side[p]
+    if move >= dist - 0.01 * g.dx:
+        hit = stop_crossing(colliders, g, xp, xn, dt, cb, s.surface_side[p])
+        if hit.hit != 0:
+            x_end = hit.x
+            v_end = boundary_velocity(colliders, hit.body, hit.n, x_end, new_v)
+            side = hit.n
+    c = Color()
+    c.body = -1
+    if near_surface(color, g, x_end):
+        # color for the next step's transfers; the new closest point lies within the
+        # old distance plus the motion (triangle inequality)
+        c = color_point(colliders, g, x_end, wp.min(reach, PARTICLE_BAND * g.dx), side)
+        if c.body < 0 and reach < PARTICLE_BAND * g.dx:
+            c = color_point(colliders, g, x_end, PARTICLE_BAND * g.dx, side)
+    s.surface_point[p] = c.surface_point
+    s.surface_side[p] = c.surface_side
+    s.surface_body[p] = c.body
+    return x_end, v_end
+
+
+def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
+    ops = dispatch(models)
+    deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
+    stencil, node_at = STORAGE[sparse]
+
+    @variant("g2p_sparse" if sparse else "g2p_dense", cpic, models=models)
+    def g2p(
+        first: int,  # this launch's first particle (sim/parallel.py)
+        materials: wp.array(dtype=MaterialParams),
+        g: GridSpec,
+        colliders: ColliderArrays,
+        color: ColorField,
+        dt_now: wp.array(dtype=float),  # [dt]
+        grid_v: wp.array(dtype=wp.vec3),
+        s: ParticleArrays,  # updated in place: each thread touches only its own particle
+        cmask: wp.array(dtype=wp.int32),  # compatibility masks from this step's P2G
+        signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
+    ):
+        p = wp.tid() + first
+        if s.level[p] != g.level:
+            return
+        dt = dt_now[0]
+        xp = s.x[p]
+        st = wp.static(stencil)(g, xp)
+        new_v = wp.vec3(0.0)
+        B = wp.mat33(0.0)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    weight = weight_at(st, i, j, k)
+                    vi = wp.vec3(0.0)
+                    n = wp.static(node_at)(g, st, i, j, k)
+                    if wp.static(sparse):
+                        if n >= 0:  # a level-1 particle's blocks are active; never read outside
+                            vi = grid_v[n]
+                    else:
+                        vi = grid_v[n]
+                    new_v += weight * vi  # Eq. 5 / 11
+                    B += weight * wp.outer(vi, offset_at(g, st, i, j, k))
+        if wp.static(cpic):
+            cb = s.surface_body[p]
+            if cb >= 0:
+                # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
+                mask = cmask[p]
+                if mask != ALL_NODES:
+                    # the particle's velocity advanced by gravity like the grid's, then
+                    # projected by the collider's boundary type
+                    v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
+                    for i in range(3):
+                        for j in range(3):
+                            for k in range(3):
+                                if node_bit(mask, i, j, k) == 0.0:
+                                    weight = weight_at(st, i, j, k)
+                                    dv = v_bar - grid_v[wp.static(node_at)(g, st, i, j, k)]
+                                    new_v += weight * dv
+                                    B += weight * wp.outer(dv, offset_at(g, st, i, j, k))
+        # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
+        new_C = (4.0 * g.inv_dx * g.inv_dx) * B
+        # Eq. 7, then the material's return mapping (Eqs. 13-14)
+        mat = materials[s.material[p]]
+        wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
+        xn = clamp_to_domain(g, xp + dt * new_v)
+        if wp.static(cpic):
+            xn, new_v = advect(colliders, color, g, s, p, xp, xn, new_v, dt)
+        # The fastest particle, and the most compressed fluid's sound speed over its
+        # speed at rest, set the next step's CFL time step; a non-finite velocity
+        # reads as infinitely fast, which stops the run.
+        speed = wp.length(new_v)
+        if not wp.isfinite(speed):
+            speed = FAST
+        wp.atomic_max(signal, 0, speed)
+        wp.atomic_max(signal, 1, wp.static(sound_speed_ratio)(mat, s.history[p]))
+        s.x[p] = xn
+        s.v[p] = new_v
+        s.C[p] = new_C
+
+    return g2p
+
+
+@functools.cache
+def g2p_kernel(sparse: bool, cpic: bool, models: tuple[int, ...] = ALL_MODELS):
+    """``g2p_sparse`` or ``g2p_dense``, with or without CPIC, reaching only the
+    material models ``models``."""
+    return _make_g2p(sparse, cpic, models)

@@ -1,0 +1,75 @@
+"""Grid update (paper Eqs. 3-4, 22): momentum to velocity, gravity, collider contact,
+domain walls; one kernel for every grid.
+
+On the CPU the extra threads' P2G sums are added first, by
+``parallel.Launcher.sum_private_grids``; this kernel sees one grid's sums either way.
+It also clears the P2G accumulators (and the coarse grid's overlap marks) for the
+next step, so that the grid is swept once per step.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .boundary import boundary_response
+from .colliders import ColliderArrays, ColorField, node_contact
+from .grid import GridSpec, node_coords, node_position
+
+wp.set_module_options({"enable_backward": False})
+
+CPU_NODE_CHUNK = 64  # nodes per kernel thread on the CPU (1 on a GPU)
+
+
+@wp.func
+def domain_walls(g: GridSpec, xi: wp.vec3, vi: wp.vec3):
+    # the wall planes' boundary conditions; a node on a plane (within round-off)
+    # belongs to the wall
+    tol = 1.0e-3 * g.dx
+    v = vi
+    for d in range(3):
+        if xi[d] <= g.domain_lo[d] + tol:
+            nrm = wp.vec3(0.0)
+            nrm[d] = 1.0
+            v = boundary_response(v, wp.vec3(0.0), nrm, g.wall_type_lo[d], g.friction_lo[d], 0.0)
+        if xi[d] >= g.domain_hi[d] - tol:
+            nrm = wp.vec3(0.0)
+            nrm[d] = -1.0
+            v = boundary_response(v, wp.vec3(0.0), nrm, g.wall_type_hi[d], g.friction_hi[d], 0.0)
+    return v
+
+
+@wp.kernel
+def grid_update(
+    first: int,  # this launch's first chunk of ``chunk`` nodes (sim/parallel.py)
+    g: GridSpec,
+    colliders: ColliderArrays,
+    color: ColorField,
+    dt_now: wp.array(dtype=float),  # [dt]
+    grid_mv: wp.array(dtype=wp.vec3),
+    grid_m: wp.array(dtype=float),
+    grid_v: wp.array(dtype=wp.vec3),
+    overlap: wp.array(dtype=wp.int32),  # the coarse grid's overlap marks (adaptive mode)
+    clear_overlap: int,
+    count: int,  # nodes
+    chunk: int,  # nodes per kernel thread
+):
+    # Warp's CPU backend spends a few ns per kernel thread, as much as a node's
+    # update: a chunk of nodes per thread there, one on a GPU
+    n0 = (wp.tid() + first) * chunk
+    n1 = wp.min(n0 + chunk, count)
+    for n in range(n0, n1):
+        m = grid_m[n]
+        vi = wp.vec3(0.0)
+        if m > 0.0:
+            # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), then collider contact (Eq. 22)
+            vi = grid_mv[n] / m + dt_now[0] * g.gravity
+            xi = node_position(g, node_coords(g, n))
+            if colliders.enabled != 0:
+                vi = node_contact(colliders, color, g, vi, xi, n)
+            # the domain walls have the last word: a collider never pushes material through them
+            vi = domain_walls(g, xi, vi)
+        grid_v[n] = vi
+        grid_mv[n] = wp.vec3(0.0)
+        grid_m[n] = 0.0
+        if clear_overlap != 0:
+            overlap[n] = 0

@@ -1,0 +1,255 @@
+"""Particle to grid (paper Eqs. 8-10), one kernel per pass.
+
+Every particle scatters mass and momentum to every grid, with that grid's kernel
+and spacing (Eq. 8); MLS-MPM folds the stress into the affine momentum (Eqs. 9-10).
+With colliders, a particle scatters only to the nodes on its side of every surface
+(CPIC, ``colliders.compatibility_mask``). The passes:
+
+=====================  =========================================================
+``p2g_dense``          original and finest modes: every particle to the one grid
+``p2g_level0``         adaptive, coarse grid: level-0 particles; each node they
+                       reach is marked as part of the overlap
+``p2g_overlap``        adaptive, coarse grid: level-1 particles, into the marked
+                       nodes only (the overlap of Eq. 8, where coarse particles
+                       can feel them); elsewhere nobody gathers from the coarse grid
+``p2g_sparse``         adaptive, fine block-sparse grid: every particle, to the
+                       active blocks
+=====================  =========================================================
+
+The stress is evaluated once per step: the two coarse passes keep it per particle,
+the fine pass reads it back. Each pass is compiled for CPIC or not and for the
+scene's material models (``sim/variant.py``).
+
+CPU threads (``sim/parallel.py``): part t > 0 of a threaded launch scatters into its
+own accumulators and records the span of storage indices it reached in its
+``Reach``; on part 0 and on CUDA ``reach.track`` is 0 and nothing is recorded.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from .colliders import ALL_NODES, ColorField, compatibility_mask, near_surface, node_bit, nodes_facing
+from .grid import BLOCK_NODES, GridSpec, dense_node_index, node_index, stencil_slots
+from .materials import ALL_MODELS, MaterialParams, dispatch
+from .parallel import EMPTY_BOUND, Reach
+from .state import ParticleArrays
+from .stencil import Stencil, dense_node_at, dense_stencil, offset_at, sparse_node_at, stencil_touches_active, weight_at
+from .variant import variant
+
+wp.set_module_options({"enable_backward": False})
+
+EMPTY = wp.constant(EMPTY_BOUND)  # the low end of a span nothing reached yet
+
+
+@wp.func
+def affine_momentum(s: ParticleArrays, p: int, g: GridSpec, dt: float, tau: wp.mat33):
+    # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
+    # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
+    return (-dt * s.volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + s.mass[p] * s.C[p]
+
+
+@wp.func
+def scatter(grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), n: int, weight: float, mv: wp.vec3,
+            affine: wp.mat33, dpos: wp.vec3, m: float):
+    # Eq. 8 for one node
+    wp.atomic_add(grid_mv, n, weight * (mv + affine * dpos))
+    wp.atomic_add(grid_m, n, weight * m)
+
+
+@wp.func
+def own_side_mask(s: ParticleArrays, p: int, color: ColorField, g: GridSpec, st: Stencil,
+                  cmask: wp.array(dtype=wp.int32)):
+    # CPIC: the stencil nodes on the particle's side of every collider; the particle's
+    # own grid keeps the mask for its G2P
+    mask = ALL_NODES
+    if s.surface_body[p] >= 0:
+        mask = compatibility_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], color, g, st.base,
+                                  st.fx)
+        if s.level[p] == g.level:
+            cmask[p] = mask
+    return mask
+
+
+@wp.func
+def record_reach(g: GridSpec, st: Stencil, reach: Reach):
+    # widen [span[0], span[1]] to the storage indices of the stencil: the corner
+    # nodes on a dense grid, the blocks' whole slots on a sparse one
+    if reach.track == 0:
+        return
+    lo = int(0)
+    hi = int(0)
+    if g.sparse == 0:
+        lo = dense_node_index(g, st.base[0], st.base[1], st.base[2])
+        hi = dense_node_index(g, st.base[0] + 2, st.base[1] + 2, st.base[2] + 2)
+    else:
+        lo = EMPTY
+        hi = -1
+        for q in range(8):
+            if st.slots[q] >= 0:
+                lo = wp.min(lo, st.slots[q] * BLOCK_NODES)
+                hi = wp.max(hi, st.slots[q] * BLOCK_NODES + BLOCK_NODES - 1)
+    wp.atomic_min(reach.span, 0, lo)
+    wp.atomic_max(reach.span, 1, hi)
+
+
+@wp.func
+def overlap_reached(g: GridSpec, overlap: wp.array(dtype=wp.int32), base: wp.vec3i):
+    # a cheap test on the stencil's 8 corners and centre (material reaching only
+    # edge midpoints of the stencil is left out of the overlap)
+    if overlap[node_index(g, base[0] + 1, base[1] + 1, base[2] + 1)] != 0:
+        return True
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                if overlap[node_index(g, base[0] + 2 * a, base[1] + 2 * b, base[2] + 2 * c)] != 0:
+                    return True
+    return False
+
+
+def _make_p2g_dense(cpic: bool, models: tuple[int, ...]):
+    particle_stress = dispatch(models).particle_stress
+
+    @variant("p2g_dense", cpic, models=models)
+    def p2g_dense(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                  color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
+                  grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach):
+        p = wp.tid() + first
+        st = dense_stencil(g, s.x[p])
+        tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
+        affine = affine_momentum(s, p, g, dt_now[0], tau)
+        mask = ALL_NODES
+        if wp.static(cpic):
+            mask = own_side_mask(s, p, color, g, st, cmask)
+        record_reach(g, st, reach)
+        mv = s.mass[p] * s.v[p]
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    weight = weight_at(st, i, j, k)
+                    if wp.static(cpic):
+                        weight = weight * node_bit(mask, i, j, k)
+                    scatter(grid_mv, grid_m, dense_node_at(g, st, i, j, k), weight, mv, affine,
+                            offset_at(g, st, i, j, k), s.mass[p])
+
+    return p2g_dense
+
+
+def _make_p2g_level0(cpic: bool, models: tuple[int, ...]):
+    particle_stress = dispatch(models).particle_stress
+
+    @variant("p2g_level0", cpic, models=models)
+    def p2g_level0(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                   color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
+                   grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
+                   tau_store: wp.array(dtype=wp.mat33), overlap: wp.array(dtype=wp.int32)):
+        p = wp.tid() + first
+        if s.level[p] != 0:
+            return
+        st = dense_stencil(g, s.x[p])
+        tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
+        tau_store[p] = tau  # for p2g_sparse
+        affine = affine_momentum(s, p, g, dt_now[0], tau)
+        mask = ALL_NODES
+        if wp.static(cpic):
+            mask = own_side_mask(s, p, color, g, st, cmask)
+        record_reach(g, st, reach)
+        mv = s.mass[p] * s.v[p]
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    n = dense_node_at(g, st, i, j, k)
+                    overlap[n] = 1  # a level-0 particle reaches this node
+                    weight = weight_at(st, i, j, k)
+                    if wp.static(cpic):
+                        weight = weight * node_bit(mask, i, j, k)
+                    scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+
+    return p2g_level0
+
+
+def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
+    particle_stress = dispatch(models).particle_stress
+
+    @variant("p2g_overlap", cpic, models=models)
+    def p2g_overlap(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                    color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
+                    grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
+                    tau_store: wp.array(dtype=wp.mat33), overlap: wp.array(dtype=wp.int32)):
+        p = wp.tid() + first
+        if s.level[p] != 1:
+            return
+        st = dense_stencil(g, s.x[p])
+        tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
+        tau_store[p] = tau  # for p2g_sparse
+        if not overlap_reached(g, overlap, st.base):
+            return
+        affine = affine_momentum(s, p, g, dt_now[0], tau)
+        mask = ALL_NODES
+        if wp.static(cpic):
+            if s.surface_body[p] >= 0:
+                mask = own_side_mask(s, p, color, g, st, cmask)
+            elif near_surface(color, g, s.x[p]):
+                # A level-1 particle's color reaches PARTICLE_BAND fine cells, but its
+                # stencil on this coarser grid reaches up to 2.6 coarse cells: beyond
+                # its own band it may still have coarse nodes behind a surface, and
+                # would push the material on their far side of a thin wall. The nodes'
+                # own colors tell which (no closest-point query needed).
+                mask = nodes_facing(s.x[p], color, g, st.base, st.fx)
+        record_reach(g, st, reach)
+        mv = s.mass[p] * s.v[p]
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    n = dense_node_at(g, st, i, j, k)
+                    if overlap[n] != 0:
+                        weight = weight_at(st, i, j, k)
+                        if wp.static(cpic):
+                            weight = weight * node_bit(mask, i, j, k)
+                        scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+
+    return p2g_overlap
+
+
+def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
+    @variant("p2g_sparse", cpic, models=models)
+    def p2g_sparse(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                   color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
+                   grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
+                   tau_store: wp.array(dtype=wp.mat33)):
+        p = wp.tid() + first
+        st = dense_stencil(g, s.x[p])
+        if not stencil_touches_active(g, st.base):
+            return
+        st.slots = stencil_slots(g, st.base)
+        affine = affine_momentum(s, p, g, dt_now[0], tau_store[p])  # the stress the coarse passes kept
+        mask = ALL_NODES
+        if wp.static(cpic):
+            mask = own_side_mask(s, p, color, g, st, cmask)
+        record_reach(g, st, reach)
+        mv = s.mass[p] * s.v[p]
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    n = sparse_node_at(g, st, i, j, k)
+                    if n >= 0:
+                        weight = weight_at(st, i, j, k)
+                        if wp.static(cpic):
+                            weight = weight * node_bit(mask, i, j, k)
+                        scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+
+    return p2g_sparse
+
+
+_MAKERS = {"dense": _make_p2g_dense, "level0": _make_p2g_level0, "overlap": _make_p2g_overlap,
+           "sparse": _make_p2g_sparse}
+PASSES = tuple(_MAKERS)  # the P2G passes, by name
+
+
+@functools.cache
+def p2g_kernel(name: str, cpic: bool, models: tuple[int, ...] = ALL_MODELS):
+    """The P2G pass ``name`` (one of ``PASSES``), with or without CPIC, reaching only
+    the material models ``models``."""
+    return _MAKERS[name](cpic, models)
