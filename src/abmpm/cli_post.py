@@ -18,6 +18,7 @@ from rich.markup import escape
 
 from abmpm.errors import AbmpmError
 from abmpm.io.blender import write_blend
+from abmpm.io.writers.surface import surface_folder
 from abmpm.post.beauty import BeautySettings, render_beauty
 from abmpm.runner import render_folder
 
@@ -66,7 +67,7 @@ def _cmd_render(args) -> int:
         w, h = args.size or (base.width, base.height)
         settings = BeautySettings(width=w, height=h, spp=args.spp or base.spp, stride=args.stride or 1,
                                   variant=args.variant, colliders=args.colliders, threads=args.threads)
-        info = render_beauty(args.dir, settings, progress=not args.quiet)
+        info = render_beauty(args.dir, settings, progress=not args.quiet, mesh=surface_folder)
         files = f"{info['beauty']}, {info['poster']} ({info['variant']}, {info['seconds_per_frame']:.1f} s a frame)"
     if not args.quiet:
         Console(highlight=False).print(f"[green]rendered[/green] {info['frames']} frames -> {escape(files)}")

@@ -40,7 +40,7 @@ from abmpm.io.progress import Progress
 from abmpm.post.beauty_scene import frame_scene
 from abmpm.post.camera import Camera
 from abmpm.post.preview import internal_kinetic_energy
-from abmpm.post.surface import file_stem, surface_folder, surfaces_of_folder
+from abmpm.post.surface import file_stem, surfaces_of_folder
 from abmpm.post.video import write_mp4, write_png
 from abmpm.scene.model import Scene
 
@@ -119,9 +119,9 @@ def _surface_frames(out: Path, on_missing: Callable[[], None] | None) -> dict[in
     return surfaces_of_folder(out)
 
 
-def mesh_missing_surfaces(out: Path, bar: Progress | None = None) -> None:
-    """Mesh a run's frames (``abmpm surface``) when it has none; OutputError naming
-    what to run when splashsurf is not installed."""
+def mesh_missing_surfaces(out: Path, mesh: Callable[[Path], object], bar: Progress | None = None) -> None:
+    """Mesh a run's frames with ``mesh`` (``abmpm surface``) when it has none;
+    OutputError naming what to run when splashsurf is not installed."""
     if not numbered(out / FRAMES_DIR, FRAME_RE):
         raise OutputError(f"{out}: no surface meshes in {out / SURFACES_DIR} and no particle frames to mesh "
                           f"(the run had output.frames = false); run it again with [output] surface = true")
@@ -130,7 +130,7 @@ def mesh_missing_surfaces(out: Path, bar: Progress | None = None) -> None:
                           f"pip install -e \".[surface]\", then run: abmpm surface {out}")
     if bar is not None:
         bar.print(f"no surface meshes in {out / SURFACES_DIR}: meshing them first (abmpm surface)")
-    surface_folder(out)
+    mesh(out)
 
 
 def _poster(out: Path, frames: list[int]) -> int:
@@ -148,19 +148,20 @@ def _poster(out: Path, frames: list[int]) -> int:
 
 def render_beauty(
     out_dir: str | os.PathLike, settings: BeautySettings = BeautySettings(), progress: bool = False,
-    bar: Progress | None = None, mesh_missing: bool = True,
+    bar: Progress | None = None, mesh: Callable[[Path], object] | None = None,
 ) -> dict:
     """Path-trace ``beauty.mp4`` and ``beauty.png`` of a finished run. ``bar`` is the
-    run's progress bar (else one is made when ``progress``); ``mesh_missing`` meshes
-    the frames first when the run has no surface meshes. Returns the files, the
-    frames rendered, the variant, the poster frame and the seconds per frame."""
+    run's progress bar (else one is made when ``progress``); ``mesh`` (the writers'
+    ``surface_folder``) meshes the frames first when the run has no surface meshes.
+    Returns the files, the frames rendered, the variant, the poster frame and the
+    seconds per frame."""
     out = Path(out_dir)
     if not out.is_dir():
         raise OutputError(f"{out}: no such output folder")
     scene = scene_from_folder(out)
     mi = import_mitsuba(settings.variant, settings.threads)
     with contextlib.nullcontext(bar) if bar is not None else Progress(progress) as own:
-        surfaces = _surface_frames(out, (lambda: mesh_missing_surfaces(out, own)) if mesh_missing else None)
+        surfaces = _surface_frames(out, (lambda: mesh_missing_surfaces(out, mesh, own)) if mesh else None)
         if not surfaces:
             raise OutputError(f"{out}: no surface meshes in {out / SURFACES_DIR}; run: abmpm surface {out}")
         frames = sorted(surfaces)[:: settings.stride]

@@ -12,76 +12,27 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, create_model, field_validator, model_validator
+from pydantic import Field, Strict, create_model, field_validator, model_validator
 
 from ..sim.materials import REGISTRY as MATERIAL_MODELS
 from ..sim.materials.base import MaterialModel
 from ..sim.reconstruct import DEFAULT_SURFACE_THRESHOLD
+from .base import Box, FilePath, PositiveFloat, Triple, Vec3, _Strict, positive_scale
 from .checks import check_feasible
-
-# Types are strict (a string is not a number, 1 is not true) except that an integer is
-# a valid float (TOML ``dx = 1``) and containers are lax: a vector may be a TOML list or
-# a Python list or tuple, a path a string. The items of a container stay strict.
-PositiveFloat = Annotated[float, Field(gt=0)]
-Vec3 = Annotated[tuple[float, float, float], Strict(False)]
-Pair = Annotated[tuple[PositiveFloat, PositiveFloat], Strict(False)]
-Triple = Annotated[tuple[PositiveFloat, PositiveFloat, PositiveFloat], Strict(False)]
-FilePath = Annotated[Path, Strict(False)]
-Box = Annotated[tuple[Vec3, Vec3], Strict(False)]
-
-# The solver computes in single precision: a number beyond FLOAT32_MAX cannot even be
-# stored, and a non-zero one below FLOAT32_TINY loses its precision or becomes 0.
-FLOAT32_MAX = 3.4028234663852886e38
-FLOAT32_TINY = 1.1754943508222875e-38
-
-
-def _plain(value):
-    """numpy scalars and arrays (np.float32, np.int64, np.bool_) -> Python numbers and
-    lists, recursively, so that strict validation treats them like the Python values."""
-    if isinstance(value, (list, tuple)):
-        out = [_plain(v) for v in value]
-        return tuple(out) if isinstance(value, tuple) else out
-    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
-        return value.tolist()
-    return value
-
-
-def _out_of_range(value, index: tuple = ()):
-    """(index, value) of the first float in ``value`` that float32 cannot hold, or None."""
-    if isinstance(value, float) and (abs(value) > FLOAT32_MAX or 0.0 < abs(value) < FLOAT32_TINY):
-        return index, value
-    if isinstance(value, (list, tuple)):
-        for i, v in enumerate(value):
-            found = _out_of_range(v, index + (i,))
-            if found is not None:
-                return found
-    return None
-
-
-class _Strict(BaseModel):
-    # Unknown keys are errors: a typo in a scene file must not be silently ignored.
-    # strict: "0.04" is not a number and "yes" is not a boolean; allow_inf_nan: inf and
-    # nan (valid TOML) are refused wherever a number is expected, vectors included.
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, strict=True, allow_inf_nan=False)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _numpy_scalars(cls, data):
-        return {k: _plain(v) for k, v in data.items()} if isinstance(data, dict) else data
-
-    @field_validator("*", mode="after")
-    @classmethod
-    def _single_precision(cls, value):
-        found = _out_of_range(value)
-        if found is not None:
-            index, x = found
-            item = f" (item {''.join(f'[{i}]' for i in index)})" if index else ""
-            raise ValueError(
-                f"{x:g}{item} is outside the single-precision range of the solver "
-                "(0 or 1.2e-38 <= |x| <= 3.4e38)"
-            )
-        return value
-
+from .colliders import (  # noqa: F401 (the collider schema, re-exported: abmpm.scene.model is the scene's one namespace)
+    BladeCollider,
+    Collider,
+    CrossedPlatesCollider,
+    FunnelCollider,
+    HourglassCollider,
+    Keyframe,
+    LetterPanelCollider,
+    MeshCollider,
+    Motion,
+    PaddleCollider,
+    SheetCollider,
+    ThinBoxCollider,
+)
 
 # --------------------------------------------------------------------------- simulation
 
@@ -286,12 +237,7 @@ class MeshBody(_BodyBase):
     rotation: Vec3 = (0.0, 0.0, 0.0)
     translation: Vec3 = (0.0, 0.0, 0.0)
 
-    @field_validator("scale")
-    @classmethod
-    def _positive_scale(cls, s):
-        if isinstance(s, (int, float)) and s <= 0:
-            raise ValueError("must be > 0")
-        return s
+    _positive_scale = field_validator("scale")(positive_scale)
 
 
 class BunnyBody(_BodyBase):
@@ -305,129 +251,6 @@ class BunnyBody(_BodyBase):
 
 Body = Annotated[
     Union[BoxBody, SphereBody, EllipsoidBody, MeshBody, BunnyBody], Field(discriminator="shape")
-]
-
-
-# --------------------------------------------------------------------------- colliders
-
-
-class Keyframe(_Strict):
-    time: float = Field(ge=0, description="s")
-    translation: Vec3 = Field((0.0, 0.0, 0.0), description="offset from the rest pose, m")
-    rotation: Vec3 = Field((0.0, 0.0, 0.0), description="XYZ Euler angles about the pivot, degrees")
-
-
-class Motion(_Strict):
-    """Kinematic rigid motion of a collider: constant velocities or keyframes."""
-
-    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="m/s")
-    angular_velocity: Vec3 = Field((0.0, 0.0, 0.0), description="rad/s about the pivot")
-    pivot: Vec3 | None = Field(None, description="rotation centre; default: the collider's center")
-    keyframes: Annotated[list[Keyframe], Strict(False)] = Field(
-        default_factory=list, description="overrides the velocities"
-    )
-
-    @model_validator(mode="after")
-    def _sorted(self):
-        times = [k.time for k in self.keyframes]
-        if any(b <= a for a, b in zip(times, times[1:])):
-            raise ValueError("keyframes must have strictly increasing times")
-        return self
-
-    @property
-    def is_static(self) -> bool:
-        return not self.keyframes and not any(self.velocity) and not any(self.angular_velocity)
-
-
-class _ColliderBase(_Strict):
-    name: str = ""
-    boundary: Literal["sticky", "slip", "separate"] = "separate"
-    friction: float = Field(0.0, ge=0, description="Coulomb friction coefficient")
-    separation: float = Field(0.0, ge=0, description="separating speed c of paper Eq. 23, m/s")
-    refine: bool = Field(True, description="mark the region around it for refinement (adaptive mode)")
-    center: Vec3 = (0.0, 0.0, 0.0)
-    rotation: Vec3 = Field((0.0, 0.0, 0.0), description="XYZ Euler angles, degrees")
-    motion: Motion = Motion()
-
-
-class MeshCollider(_ColliderBase):
-    shape: Literal["mesh"] = "mesh"
-    file: FilePath
-    scale: float | Triple = 1.0
-
-    _positive_scale = field_validator("scale")(MeshBody._positive_scale.__func__)
-
-
-class SheetCollider(_ColliderBase):
-    """Zero-thickness rectangle, normal +y before rotation."""
-
-    shape: Literal["sheet"] = "sheet"
-    size: Pair = (1.0, 1.0)
-    resolution: int | None = Field(None, ge=1, le=2000, description="quads per side (2 triangles each)")
-
-
-class ThinBoxCollider(_ColliderBase):
-    shape: Literal["thin_box"] = "thin_box"
-    size: Triple
-
-
-class BladeCollider(_ColliderBase):
-    """Blade in the xy-plane (normal +z before rotation); thickness 0 is a sheet."""
-
-    shape: Literal["blade"] = "blade"
-    length: PositiveFloat
-    height: PositiveFloat
-    thickness: float = Field(0.0, ge=0)
-
-
-class CrossedPlatesCollider(_ColliderBase):
-    shape: Literal["crossed_plates"] = "crossed_plates"
-    size: Pair = (0.4, 0.2)
-    thickness: float = Field(0.0, ge=0)
-
-
-class LetterPanelCollider(_ColliderBase):
-    """Panel in the xy-plane with holes shaped like the glyphs of ``text``."""
-
-    shape: Literal["letter_panel"] = "letter_panel"
-    text: str = Field("ABC", min_length=1)
-    size: Pair = (0.6, 0.3)
-    thickness: float = Field(0.0, ge=0)
-
-    @field_validator("text")
-    @classmethod
-    def _visible(cls, text: str) -> str:
-        if not text.strip():
-            raise ValueError("must contain at least one visible character, got only blanks")
-        return text
-
-
-class HourglassCollider(_ColliderBase):
-    shape: Literal["hourglass"] = "hourglass"
-    height: PositiveFloat = 0.6
-    radius: PositiveFloat = 0.15
-    neck_radius: PositiveFloat = 0.02
-    wall_thickness: float = Field(0.0, ge=0)
-
-
-class FunnelCollider(_ColliderBase):
-    shape: Literal["funnel"] = "funnel"
-    top_radius: PositiveFloat = 0.2
-    pipe_radius: PositiveFloat = 0.03
-    cone_height: PositiveFloat = 0.2
-    pipe_length: PositiveFloat = 0.1
-
-
-class PaddleCollider(_ColliderBase):
-    shape: Literal["paddle"] = "paddle"
-    length: PositiveFloat = 0.3
-    height: PositiveFloat = 0.1
-
-
-Collider = Annotated[
-    Union[MeshCollider, SheetCollider, ThinBoxCollider, BladeCollider, CrossedPlatesCollider,
-          LetterPanelCollider, HourglassCollider, FunnelCollider, PaddleCollider],
-    Field(discriminator="shape"),
 ]
 
 

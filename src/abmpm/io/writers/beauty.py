@@ -11,6 +11,7 @@ import time
 from abmpm.errors import OutputError
 from abmpm.io.outdir import BEAUTY_FILE, BEAUTY_POSTER_FILE
 from abmpm.io.writers.base import RunContext, Writer
+from abmpm.io.writers.surface import surface_folder
 from abmpm.post.beauty import BeautySettings, render_beauty
 
 INSTALL_HINT = 'output.beauty = true needs Mitsuba 3: pip install -e ".[render]"'
@@ -37,7 +38,7 @@ class BeautyWriter(Writer):
             return
 
         t0 = time.perf_counter()
-        info = render_beauty(run.out, self.settings or BeautySettings(), bar=run.progress)
+        info = render_beauty(run.out, self.settings or BeautySettings(), bar=run.progress, mesh=surface_folder)
         run.outputs["beauty"] = BEAUTY_FILE
         run.outputs["beauty_poster"] = BEAUTY_POSTER_FILE
         run.summary["beauty"] = {k: info[k] for k in ("frames", "poster_frame", "variant", "size", "spp",
