@@ -18,7 +18,7 @@ from abmpm.cli import main
 from abmpm.io import write_json, write_mesh_ply, write_particles_ply
 from abmpm.io.outdir import SCENE_FILE, collider_path, frame_path
 from abmpm.post import colors_by_level, colors_by_material, colors_by_speed
-from abmpm.post import viewer as viewer_mod
+from abmpm.io.writers import viewer as viewer_writer
 from abmpm.post.viewer import Viewer, region_segments
 from abmpm.scene.model import BoxBody, Elastic, Fluid, Output, Scene, SimulationSettings
 
@@ -211,7 +211,7 @@ def test_run_with_view(tmp_path, monkeypatch, capsys):
             made.append("waited")
             return True
 
-    monkeypatch.setattr(viewer_mod, "Viewer", Recording)
+    monkeypatch.setattr(viewer_writer, "Viewer", Recording)  # the class the view writer makes
     (tmp_path / "tiny.toml").write_text(
         'name = "tiny"\n[simulation]\ndomain_max = [0.4, 0.4, 0.4]\ndx = 0.05\n'
         '[[materials]]\nname = "water"\nmodel = "fluid"\n'
