@@ -189,3 +189,23 @@ def test_the_docs_reference_check_can_fail():
     assert _broken("see `sim/p2g.py` (`p2g_overlap`) and `tests/test_architecture.py::_broken`") == []
     assert _broken("`sim/transfer.py`") == ["sim/transfer.py: no such file"]
     assert _broken("`sim/p2g.py` (`p2g_everything`)") == ["sim/p2g.py: defines no p2g_everything"]
+
+
+def _solver_members_used() -> dict[str, str]:
+    # solver.<name> in the code outside sim/: name -> first place
+    used = {}
+    for p in _sources():
+        if SRC / "sim" in p.parents:
+            continue
+        for m in re.finditer(r"\bsolver\.([A-Za-z_]\w*)", p.read_text()):
+            used.setdefault(m.group(1), str(p.relative_to(ROOT)))
+    return used
+
+
+def test_simulation_asks_the_solver_only_what_architecture_md_lists():
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    section = text[text.index("## The solver's questions and answers"):text.index("## Segments and CUDA graphs")]
+    listed = set(re.findall(r"`solver\.([A-Za-z_]\w*)", section))
+    unlisted = {name: where for name, where in _solver_members_used().items() if name not in listed}
+    assert not unlisted, f"solver members used but not in architecture.md's list: {unlisted}"
+    assert "launcher" not in listed and len(listed) > 15

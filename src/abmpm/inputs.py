@@ -23,7 +23,7 @@ from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
 from .sim.materials import MaterialParams, material_params, wave_speed
-from .sim.solver import SolverConfig
+from .sim.config import SolverConfig
 
 
 def solver_config(scene: Scene, mode: str) -> SolverConfig:

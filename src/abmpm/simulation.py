@@ -233,7 +233,7 @@ class Simulation:
         if self._left == 0:
             self._t_frame = 0.0
             self._taken = 0
-            with self.solver.launcher.section("frame end"):  # a phase of a profile (abmpm bench --profile)
+            with self.solver.section("frame end"):  # a phase of a profile (abmpm bench --profile)
                 self._end_frame()
         elif self.dt > dt_max * (1.0 + 1e-6):
             self._split_rest(self.frame_dt - self._t_frame, dt_max)

@@ -127,7 +127,7 @@ def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
         sim.step()  # compile and warm up outside the timing
         counts = []
         if profile and mode != "adaptive_plain_split":
-            sim.solver.launcher.profile = KernelProfile()
+            sim.solver.profile = KernelProfile()
         t0 = time.perf_counter()
         steps0, recon0 = sim.steps, sim.solver.reconstruction_seconds
         sim.advance(frames=frames, callback=lambda s: counts.append(s.particle_count))
@@ -137,8 +137,8 @@ def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
                      "steps": steps, "wall_s": round(wall, 2),
                      "ns_per_particle_step": round(1e9 * wall / steps / np.mean(counts), 1),
                      "reconstruction_s": round(sim.solver.reconstruction_seconds - recon0, 3)}
-        if sim.solver.launcher.profile is not None:
-            out[mode]["profile"] = profile_rows(sim.solver.launcher.profile, steps, wall)
+        if sim.solver.profile is not None:
+            out[mode]["profile"] = profile_rows(sim.solver.profile, steps, wall)
     a, f = out["adaptive"], out["finest"]
     out["speedup_adaptive_over_finest"] = round(a["steps_per_s"] / f["steps_per_s"], 3)
     out["particle_ratio_finest_over_adaptive"] = round(f["mean_particles"] / a["mean_particles"], 3)

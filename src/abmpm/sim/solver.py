@@ -33,7 +33,6 @@ Everything else (sampling, output, diagnostics, time stepping) lives outside.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -46,13 +45,13 @@ from . import parallel, reconstruct, refine, sorting
 from .boundary import FACES
 from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_field
 from .colliders import color_particles
+from .config import SolverConfig
 from .g2p import g2p_kernel
 from .grid import Grid
 from .grid_update import CPU_NODE_CHUNK, grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import p2g_kernel
-from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, Launcher, reset_reach, sum_private_grids
-from .reconstruct import DEFAULT_SURFACE_THRESHOLD
+from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach, sum_private_grids
 from .refine import REFINE_EVERY, Refiner
 from .sorting import level_ranges, sort_by_cell
 from .state import DYNAMIC, FIELDS, ParticleState
@@ -68,29 +67,6 @@ SIGNAL_STRIDE = CACHE_LINE_WORDS  # floats between two CFL signal slots
 # all) and how a profile names it
 _P2G_LEVEL = {"dense": None, "level0": 0, "overlap": 1, "sparse": None}
 _P2G_LABEL = {"dense": "", "level0": " (level 0)", "overlap": " (level 1, overlap)", "sparse": ""}
-
-
-@dataclass
-class SolverConfig:
-    domain_lo: tuple[float, float, float]
-    domain_hi: tuple[float, float, float]
-    dx: float  # spacing of the coarsest grid
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    # face name ('x_min' ... 'z_max') -> (wall type, friction); missing faces: separate, 0
-    walls: dict | None = None
-    # refinement factor b of a block-sparse level-1 grid (adaptive mode), or None
-    refine_factor: int | None = None
-    # level the single dense grid serves (1 in finest mode, where every particle is fine)
-    base_level: int = 0
-    # surface particle reconstruction after each split (paper Section 4.3), and its
-    # t_p (Eq. 16) in units of (mass of a full coarse cell) / dx
-    reconstruct: bool = False
-    surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
-    # CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored
-    threads: int | None = None
-    # run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
-    # a warning on the CPU, where a replayed graph would run on one thread)
-    cuda_graph: bool = False
 
 
 class MPMSolver:
@@ -227,6 +203,20 @@ class MPMSolver:
         """The refined coarse cells B_s (bool, one per coarse cell; a copy), or None
         without a fine level."""
         return None if self.refiner is None else self.refiner.region_cells.copy()
+
+    @property
+    def profile(self) -> KernelProfile | None:
+        """While set, every launch and phase of the step is timed into it (``abmpm
+        bench --profile``)."""
+        return self.launcher.profile
+
+    @profile.setter
+    def profile(self, profile: KernelProfile | None) -> None:
+        self.launcher.profile = profile
+
+    def section(self, name: str):
+        """A context: the launches inside are profiled as the phase ``name``."""
+        return self.launcher.section(name)
 
     @property
     def reconstruction_seconds(self) -> float:

@@ -1,0 +1,34 @@
+"""What a solver is built with (``MPMSolver(config, ...)``): fixed for its life."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .reconstruct import DEFAULT_SURFACE_THRESHOLD
+
+
+@dataclass
+class SolverConfig:
+    domain_lo: tuple[float, float, float]
+    """Lower corner of the domain box, m (the wall planes)."""
+    domain_hi: tuple[float, float, float]
+    """Upper corner of the domain box, m."""
+    dx: float
+    """Spacing of the coarsest grid, m."""
+    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    """m/s^2."""
+    walls: dict | None = None
+    """Face name ('x_min' ... 'z_max') -> (wall type, friction); missing faces: separate, 0."""
+    refine_factor: int | None = None
+    """Refinement factor b of a block-sparse level-1 grid (adaptive mode), or None."""
+    base_level: int = 0
+    """Level the single dense grid serves (1 in finest mode, where every particle is fine)."""
+    reconstruct: bool = False
+    """Surface particle reconstruction after each split (paper Section 4.3)."""
+    surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
+    """Its t_p (Eq. 16), in units of (mass of a full coarse cell) / dx."""
+    threads: int | None = None
+    """CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored."""
+    cuda_graph: bool = False
+    """Run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
+    a warning on the CPU, where a replayed graph would run on one thread)."""
