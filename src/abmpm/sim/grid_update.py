@@ -1,9 +1,8 @@
 """Grid update (paper Eqs. 3-4, 22): momentum to velocity, gravity, collider contact,
 domain walls; one kernel for every grid.
 
-On the CPU the extra threads' P2G sums are added first, by
-``parallel.Launcher.sum_private_grids``; this kernel sees one grid's sums either way.
-It also clears the P2G accumulators (and the coarse grid's overlap marks) for the
+On the CPU the extra threads' P2G sums are added first (``parallel.add_thread_sums``,
+on the kernel thread's own chunk of nodes; nothing to add on CUDA). It also clears the P2G accumulators (and the coarse grid's overlap marks) for the
 next step, so that the grid is swept once per step.
 """
 
@@ -14,6 +13,7 @@ import warp as wp
 from .boundary import boundary_response
 from .colliders import ColliderArrays, ColorField, node_contact
 from .grid import GridSpec, node_coords, node_position
+from .parallel import ThreadSums, add_thread_sums
 
 wp.set_module_options({"enable_backward": False})
 
@@ -52,11 +52,13 @@ def grid_update(
     clear_overlap: int,
     count: int,  # nodes
     chunk: int,  # nodes per kernel thread
+    sums: ThreadSums,  # the other CPU threads' P2G sums
 ):
     # Warp's CPU backend spends a few ns per kernel thread, as much as a node's
     # update: a chunk of nodes per thread there, one on a GPU
     n0 = (wp.tid() + first) * chunk
     n1 = wp.min(n0 + chunk, count)
+    add_thread_sums(sums, n0, n1, grid_mv, grid_m)
     for n in range(n0, n1):
         m = grid_m[n]
         vi = wp.vec3(0.0)

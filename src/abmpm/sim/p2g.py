@@ -60,16 +60,15 @@ def scatter(grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), n: 
 
 
 @wp.func
-def own_side_mask(s: ParticleArrays, p: int, color: ColorField, g: GridSpec, st: Stencil,
-                  cmask: wp.array(dtype=wp.int32)):
-    # CPIC: the stencil nodes on the particle's side of every collider; the particle's
-    # own grid keeps the mask for its G2P
-    mask = ALL_NODES
-    if s.surface_body[p] >= 0:
-        mask = compatibility_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], color, g, st.base,
-                                  st.fx)
-        if s.level[p] == g.level:
-            cmask[p] = mask
+def own_side_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, level: int,
+                  color: ColorField, g: GridSpec, st: Stencil, cmask: wp.array(dtype=wp.int32), p: int):
+    # CPIC for a particle near a collider (surface_body >= 0): the stencil nodes on its
+    # side of every collider; its own grid keeps the mask for its G2P. (Values, not the
+    # particle struct: a struct argument is copied, 1.1 kB a particle, and this
+    # function is not inlined.)
+    mask = compatibility_mask(surface_point, surface_side, surface_body, xp, color, g, st.base, st.fx)
+    if level == g.level:
+        cmask[p] = mask
     return mask
 
 
@@ -122,7 +121,9 @@ def _make_p2g_dense(cpic: bool, models: tuple[int, ...]):
         affine = affine_momentum(s, p, g, dt_now[0], tau)
         mask = ALL_NODES
         if wp.static(cpic):
-            mask = own_side_mask(s, p, color, g, st, cmask)
+            if s.surface_body[p] >= 0:
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
+                                     color, g, st, cmask, p)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
         for i in range(3):
@@ -154,7 +155,9 @@ def _make_p2g_level0(cpic: bool, models: tuple[int, ...]):
         affine = affine_momentum(s, p, g, dt_now[0], tau)
         mask = ALL_NODES
         if wp.static(cpic):
-            mask = own_side_mask(s, p, color, g, st, cmask)
+            if s.surface_body[p] >= 0:
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
+                                     color, g, st, cmask, p)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
         for i in range(3):
@@ -190,7 +193,8 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
         mask = ALL_NODES
         if wp.static(cpic):
             if s.surface_body[p] >= 0:
-                mask = own_side_mask(s, p, color, g, st, cmask)
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
+                                     color, g, st, cmask, p)
             elif near_surface(color, g, s.x[p]):
                 # A level-1 particle's color reaches PARTICLE_BAND fine cells, but its
                 # stencil on this coarser grid reaches up to 2.6 coarse cells: beyond
@@ -227,7 +231,9 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
         affine = affine_momentum(s, p, g, dt_now[0], tau_store[p])  # the stress the coarse passes kept
         mask = ALL_NODES
         if wp.static(cpic):
-            mask = own_side_mask(s, p, color, g, st, cmask)
+            if s.surface_body[p] >= 0:
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
+                                     color, g, st, cmask, p)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
         for i in range(3):

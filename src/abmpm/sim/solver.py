@@ -51,7 +51,7 @@ from .grid import Grid
 from .grid_update import CPU_NODE_CHUNK, grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import p2g_kernel
-from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach, sum_private_grids
+from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
 from .sorting import level_ranges, sort_by_cell
 from .state import DYNAMIC, FIELDS, ParticleState
@@ -143,7 +143,7 @@ class MPMSolver:
         on first use, in a module of its own: ``load_kernels`` loads them all before
         the first segment, so that a level reached only later in the run (the fine
         grid's) never compiles in the middle of it."""
-        kernels = [reset_reach, sum_private_grids, grid_update]
+        kernels = [reset_reach, grid_update]
         kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
         kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
         return kernels
@@ -397,14 +397,15 @@ class MPMSolver:
         """Momentum to velocity, gravity, contact and walls on every grid (Eqs. 3-4, 22)."""
         chunk = 1 if self.launcher.device.is_cuda else CPU_NODE_CHUNK
         for g in self.grids:
-            private = self.launcher.private_grids(g.level, g.mv, g.m)
-            self.launcher.sum_private_grids(private, g.node_count, f"thread sums {g.name}")
+            private = self.launcher.private_grids(g.level, g.mv, g.m)  # the other CPU threads' sums
             coarse_adaptive = self.refiner is not None and not g.sparse
             self.launcher.launch(grid_update, -(-g.node_count // chunk),
                                  [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
                                   self._occ if coarse_adaptive else self._no_occ, int(coarse_adaptive),
-                                  g.node_count, chunk],
+                                  g.node_count, chunk, private.sums],
                                  label=f"grid update {g.name}", min_range=64)
+            if private.extra > 0:  # every part's reach empty again
+                self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
 
     def g2p(self, s: ParticleState, signal_slots: list) -> None:
         """Each particle from its own level's grid (Eqs. 11-14, 23-25); its speed and
