@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from abmpm.geometry.glyphs import letter_hole_polygons
+from abmpm.geometry.collider_shapes import REGISTRY as SHAPES
 from abmpm.geometry.procedural import (
-    PROCEDURAL,
     blade,
     crossed_plates,
     funnel,
@@ -74,9 +74,9 @@ def test_open_colliders_have_boundary_and_no_degenerate_faces(name):
 
 
 def test_registry_names_builders():
-    assert set(PROCEDURAL) >= {"sheet", "thin_box", "blade", "crossed_plates", "letter_panel", "hourglass", "funnel", "paddle"}
-    for fn in PROCEDURAL.values():
-        assert callable(fn)
+    assert set(SHAPES) >= {"sheet", "thin_box", "blade", "crossed_plates", "letter_panel", "hourglass", "funnel", "paddle"}
+    for shape in SHAPES.values():
+        assert callable(shape.build)
 
 
 # ----------------------------------------------------------------------------- plates
@@ -382,3 +382,22 @@ def test_collider_subdivision_stays_bounded_for_a_huge_sheet():
     # a small mesh is split to the limit asked for
     v3, f3 = limit_edge_length(v * 0.01, f, 0.1)
     assert np.linalg.norm(v3[f3[:, [1, 2, 0]]] - v3[f3], axis=2).max() <= 0.1 + 1e-12
+
+
+# builder parameters a scene file does not set (they keep the builder's default)
+NOT_IN_SCENE = {"blade": {"resolution"}, "letter_panel": {"font", "font_size"}, "hourglass": {"segments"},
+                "funnel": {"segments"}, "paddle": {"thickness"}}
+POSE = {"center", "rotation_deg"}  # the placement's, after the builder
+
+
+def test_every_declared_parameter_is_a_builder_keyword():
+    """The placement passes a builder exactly its shape's declared parameters, by
+    name: each must be a keyword of the builder (else the build fails), and a builder
+    parameter left out must be listed as not in scenes (a deliberate choice)."""
+    import inspect
+
+    for name, shape in SHAPES.items():
+        params = set(inspect.signature(shape.build).parameters) - POSE
+        declared = {p.name for p in shape.parameters}
+        assert declared <= params, f"{name}: {sorted(declared - params)} are no keywords of its builder"
+        assert params - declared == NOT_IN_SCENE.get(name, set()), name

@@ -7,8 +7,9 @@ Among the submodules:
 
 * :mod:`~abmpm.geometry.meshes`: mesh files, ``transform_mesh`` and ``place``
   (the one placement of every collider shape);
-* :mod:`~abmpm.geometry.procedural`: the procedural collider shapes and
-  ``PROCEDURAL``, their table by scene name; :mod:`~abmpm.geometry.glyphs`: the
+* :mod:`~abmpm.geometry.procedural`: the procedural collider shapes;
+  :mod:`~abmpm.geometry.collider_shapes`: their registry by scene name, one module
+  a shape with the parameters a scene sets; :mod:`~abmpm.geometry.glyphs`: the
   letter panel's glyph outlines and triangulation;
   :mod:`~abmpm.geometry.placement`: scene collider -> world-space mesh;
 * :mod:`~abmpm.geometry.topology`: edge adjacency, boundary edges and loops,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import inspect
 import warnings
 
 import numpy as np
@@ -10,11 +9,7 @@ import trimesh
 
 from ..errors import SceneError
 from .meshes import MAX_COORDINATE, load_mesh, place
-from .procedural import PROCEDURAL
-
-# builder parameters that are not shape fields: the builder is called at the origin
-# and the mesh is placed afterwards from the collider's center and rotation
-_POSE_PARAMETERS = ("center", "rotation_deg")
+from .collider_shapes import REGISTRY as SHAPES
 
 
 def collider_mesh(collider, resolve=lambda p: p, where: str = "colliders[0]") -> trimesh.Trimesh:
@@ -38,14 +33,6 @@ def collider_mesh(collider, resolve=lambda p: p, where: str = "colliders[0]") ->
     return mesh
 
 
-def _shape_fields(make, collider) -> dict:
-    """The builder's keyword arguments from the collider description: each parameter
-    of ``make`` (except the pose) that the description has a field for. Parameters the
-    scene format does not expose (``segments``, ``font``, ...) keep their defaults."""
-    names = [k for k in inspect.signature(make).parameters if k not in _POSE_PARAMETERS]
-    return {k: getattr(collider, k) for k in names if hasattr(collider, k)}
-
-
 def _build(collider, resolve, where: str) -> trimesh.Trimesh:
     if collider.shape == "mesh":
         mesh = load_mesh(resolve(collider.file), where=f"{where}.file")
@@ -54,9 +41,9 @@ def _build(collider, resolve, where: str) -> trimesh.Trimesh:
         if not np.all(scale == 1.0):
             mesh.apply_transform(np.diag([*scale, 1.0]))
     else:
-        make = PROCEDURAL[collider.shape]
+        shape = SHAPES[collider.shape]
         try:
-            mesh = make(**_shape_fields(make, collider))
+            mesh = shape.build(**shape.arguments(collider))  # built around the origin, placed below
         except ValueError as exc:  # e.g. an hourglass neck wider than its bulbs
             key = f"{where}.text" if collider.shape == "letter_panel" and "text" in str(exc) else where
             raise SceneError(f"{key}: {exc}") from None

@@ -12,11 +12,10 @@ around the origin and placed with :func:`abmpm.geometry.meshes.place`,
 ``world = center + R @ local`` with ``R = euler_matrix(rotation_deg)`` (intrinsic XYZ
 Euler angles in degrees).
 
-``PROCEDURAL`` maps the shape names used in scene files to the builders; it is the
-only table of procedural shapes. :func:`abmpm.geometry.placement.collider_mesh`
-passes a builder each of its parameters (other than ``center`` and
-``rotation_deg``) for which the scene's collider has a field of the same name: a
-parameter and the scene field that sets it share their name.
+The shapes a scene file can name are registered in
+:mod:`abmpm.geometry.collider_shapes` (one module each, declaring the parameters a
+scene sets); :func:`abmpm.geometry.placement.collider_mesh` passes a builder exactly
+those, by name, and places the mesh from the collider's center and rotation.
 
 The glyph outlines and triangulation of the letter panel are in
 :mod:`abmpm.geometry.glyphs`, edge topology (boundary edges, loops) in
@@ -420,20 +419,7 @@ def funnel(
     return place(mesh, center, rotation_deg)
 
 
-#: scene shape name -> builder (the only table of procedural shapes; see the module docstring)
-PROCEDURAL = {
-    "sheet": sheet,
-    "thin_box": thin_box,
-    "blade": blade,
-    "crossed_plates": crossed_plates,
-    "letter_panel": letter_panel,
-    "hourglass": hourglass,
-    "funnel": funnel,
-    "paddle": paddle,
-}
-
 __all__ = [
-    "PROCEDURAL",
     "blade",
     "crossed_plates",
     "funnel",

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Union
 
-from pydantic import Field, Strict, field_validator, model_validator
+from pydantic import AfterValidator, Field, Strict, create_model, field_validator, model_validator
 
+from ..geometry.collider_shapes import REGISTRY as SHAPES
+from ..geometry.collider_shapes import REQUIRED, ColliderShape, ShapeParameter
 from .base import FilePath, Pair, PositiveFloat, Triple, Vec3, _Strict, positive_scale
 
 
@@ -57,74 +59,48 @@ class MeshCollider(_ColliderBase):
     _positive_scale = field_validator("scale")(positive_scale)
 
 
-class SheetCollider(_ColliderBase):
-    """Zero-thickness rectangle, normal +y before rotation."""
-
-    shape: Literal["sheet"] = "sheet"
-    size: Pair = (1.0, 1.0)
-    resolution: int | None = Field(None, ge=1, le=2000, description="quads per side (2 triangles each)")
+def _visible(text: str) -> str:
+    if not text.strip():
+        raise ValueError("must contain at least one visible character, got only blanks")
+    return text
 
 
-class ThinBoxCollider(_ColliderBase):
-    shape: Literal["thin_box"] = "thin_box"
-    size: Triple
+def _field(p: ShapeParameter):
+    # the pydantic type and field of a declared shape parameter (collider_shapes.KINDS)
+    default = ... if p.default is REQUIRED else p.default
+    doc = {"description": p.doc} if p.doc else {}
+    if p.kind == "positive":
+        return PositiveFloat, Field(default, **doc)
+    if p.kind == "non_negative":
+        return float, Field(default, ge=0, **doc)
+    if p.kind == "pair":
+        return Pair, Field(default, **doc)
+    if p.kind == "triple":
+        return Triple, Field(default, **doc)
+    if p.kind == "text":
+        return Annotated[str, AfterValidator(_visible)], Field(default, min_length=1, **doc)
+    return int | None, Field(default, ge=p.ge, le=p.le, **doc)  # count
 
 
-class BladeCollider(_ColliderBase):
-    """Blade in the xy-plane (normal +z before rotation); thickness 0 is a sheet."""
-
-    shape: Literal["blade"] = "blade"
-    length: PositiveFloat
-    height: PositiveFloat
-    thickness: float = Field(0.0, ge=0)
-
-
-class CrossedPlatesCollider(_ColliderBase):
-    shape: Literal["crossed_plates"] = "crossed_plates"
-    size: Pair = (0.4, 0.2)
-    thickness: float = Field(0.0, ge=0)
+def collider_schema(shape: ColliderShape) -> type[_ColliderBase]:
+    """The scene schema of a registered collider shape, from its declared parameters:
+    ``SheetCollider`` for ``sheet``, with the contact law, pose and motion of every
+    collider."""
+    fields: dict = {"shape": (Literal[shape.name], shape.name)}
+    fields.update({p.name: _field(p) for p in shape.parameters})
+    cls_name = "".join(part.capitalize() for part in shape.name.split("_")) + "Collider"
+    return create_model(cls_name, __base__=_ColliderBase, __doc__=shape.doc, __module__=__name__, **fields)
 
 
-class LetterPanelCollider(_ColliderBase):
-    """Panel in the xy-plane with holes shaped like the glyphs of ``text``."""
+# One schema per registered shape (``abmpm.geometry.collider_shapes.REGISTRY``).
+SHAPE_SCHEMAS: dict[str, type[_ColliderBase]] = {name: collider_schema(s) for name, s in SHAPES.items()}
+SheetCollider = SHAPE_SCHEMAS["sheet"]
+ThinBoxCollider = SHAPE_SCHEMAS["thin_box"]
+BladeCollider = SHAPE_SCHEMAS["blade"]
+CrossedPlatesCollider = SHAPE_SCHEMAS["crossed_plates"]
+LetterPanelCollider = SHAPE_SCHEMAS["letter_panel"]
+HourglassCollider = SHAPE_SCHEMAS["hourglass"]
+FunnelCollider = SHAPE_SCHEMAS["funnel"]
+PaddleCollider = SHAPE_SCHEMAS["paddle"]
 
-    shape: Literal["letter_panel"] = "letter_panel"
-    text: str = Field("ABC", min_length=1)
-    size: Pair = (0.6, 0.3)
-    thickness: float = Field(0.0, ge=0)
-
-    @field_validator("text")
-    @classmethod
-    def _visible(cls, text: str) -> str:
-        if not text.strip():
-            raise ValueError("must contain at least one visible character, got only blanks")
-        return text
-
-
-class HourglassCollider(_ColliderBase):
-    shape: Literal["hourglass"] = "hourglass"
-    height: PositiveFloat = 0.6
-    radius: PositiveFloat = 0.15
-    neck_radius: PositiveFloat = 0.02
-    wall_thickness: float = Field(0.0, ge=0)
-
-
-class FunnelCollider(_ColliderBase):
-    shape: Literal["funnel"] = "funnel"
-    top_radius: PositiveFloat = 0.2
-    pipe_radius: PositiveFloat = 0.03
-    cone_height: PositiveFloat = 0.2
-    pipe_length: PositiveFloat = 0.1
-
-
-class PaddleCollider(_ColliderBase):
-    shape: Literal["paddle"] = "paddle"
-    length: PositiveFloat = 0.3
-    height: PositiveFloat = 0.1
-
-
-Collider = Annotated[
-    Union[MeshCollider, SheetCollider, ThinBoxCollider, BladeCollider, CrossedPlatesCollider,
-          LetterPanelCollider, HourglassCollider, FunnelCollider, PaddleCollider],
-    Field(discriminator="shape"),
-]
+Collider = Annotated[Union[(MeshCollider, *SHAPE_SCHEMAS.values())], Field(discriminator="shape")]
