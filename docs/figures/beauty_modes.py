@@ -39,7 +39,7 @@ from abmpm.post.surface import surface_meshes, write_surfaces
 from abmpm.scene.loader import load_scene
 
 MODES = ("original", "adaptive")
-# the frame each picture shows (30 frames a second)
+# a scene's frame where the last one does not show the difference (none so far)
 FRAMES = {}
 
 runs = Path(sys.argv[1])
