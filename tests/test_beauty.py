@@ -127,6 +127,18 @@ def test_render_command(beauty_run, tmp_path, capsys):
     assert (out / "beauty.png").is_file()
 
 
+def test_render_one_frame_of_a_run(beauty_run):
+    """``render_run_frame`` (docs/figures/beauty_modes.py): one frame, as the beauty
+    pass renders it; a frame with no surface mesh names the command."""
+    from abmpm.post.beauty import BeautySettings, render_run_frame
+
+    out = beauty_run[0]
+    img = render_run_frame(out, 1, BeautySettings(width=64, height=48, spp=2, threads=1))
+    assert img.shape == (48, 64, 3) and img.dtype == np.uint8 and img.std() > 5.0
+    with pytest.raises(OutputError, match="abmpm surface"):
+        render_run_frame(out, 7, BeautySettings(width=8, height=8, spp=1, threads=1))
+
+
 def test_no_surfaces_and_no_splashsurf_names_the_command(beauty_run, tmp_path, monkeypatch, capsys):
     out = tmp_path / "run"
     shutil.copytree(beauty_run[0], out)

@@ -45,7 +45,7 @@ from abmpm.post.video import write_mp4, write_png
 from abmpm.scene.model import Scene
 
 __all__ = ["CPU_VARIANT", "GPU_VARIANT", "INSTALL_HINT", "BeautySettings", "import_mitsuba", "render_beauty",
-           "render_frame"]
+           "render_frame", "render_run_frame"]
 
 GPU_VARIANT = "cuda_ad_rgb"
 CPU_VARIANT = "scalar_rgb"
@@ -146,6 +146,41 @@ def _poster(out: Path, frames: list[int]) -> int:
     return best
 
 
+def _frame_renderer(mi, out: Path, scene: Scene, settings: BeautySettings) -> Callable[[int, dict], np.ndarray]:
+    """A function rendering frame ``n`` of the run ``out`` from its surface meshes
+    {material: PLY path} and its collider, with the beauty pass's camera, looks and
+    lighting: an sRGB ``uint8 (H, W, 3)`` image."""
+    colliders = dict(numbered(out / COLLIDERS_DIR, COLLIDER_RE))
+    st = scene.simulation
+    camera = Camera.framing_box(st.domain_min, st.domain_max, settings.width, settings.height)
+    looks = _looks(scene)
+    c_look = collider_look(scene.output.model_dump(), settings.colliders)
+
+    def render(n: int, surfaces: dict[str, Path]) -> np.ndarray:
+        meshes = {m: p for m, p in surfaces.items() if m in looks}  # not a leftover of another scene
+        d = frame_scene(mi, camera, (st.domain_min, st.domain_max), meshes, looks, colliders.get(n), c_look,
+                        settings.spp)
+        return render_frame(mi, d)
+
+    return render
+
+
+def render_run_frame(out_dir: str | os.PathLike, frame: int, settings: BeautySettings = BeautySettings()) -> np.ndarray:
+    """One frame of a run folder as the beauty pass renders it (same camera, looks,
+    lighting and settings), from that frame's surface meshes, which must be there
+    (``surfaces/surface_NNNNN_<material>.ply``: ``abmpm surface``, or
+    :func:`abmpm.post.surface.write_surfaces` for that frame alone). Returns an sRGB
+    ``uint8 (H, W, 3)`` image; OutputError when the frame has no surface mesh."""
+    out = Path(out_dir)
+    scene = scene_from_folder(out)
+    surfaces = surfaces_of_folder(out).get(frame)
+    if not surfaces:
+        raise OutputError(f"{out}: no surface meshes of frame {frame} in {out / SURFACES_DIR}; "
+                          f"run: abmpm surface {out}")
+    mi = import_mitsuba(settings.variant, settings.threads)
+    return _frame_renderer(mi, out, scene, settings)(frame, surfaces)
+
+
 def render_beauty(
     out_dir: str | os.PathLike, settings: BeautySettings = BeautySettings(), progress: bool = False,
     bar: Progress | None = None, mesh: Callable[[Path], object] | None = None,
@@ -165,11 +200,7 @@ def render_beauty(
         if not surfaces:
             raise OutputError(f"{out}: no surface meshes in {out / SURFACES_DIR}; run: abmpm surface {out}")
         frames = sorted(surfaces)[:: settings.stride]
-        colliders = dict(numbered(out / COLLIDERS_DIR, COLLIDER_RE))
-        st = scene.simulation
-        camera = Camera.framing_box(st.domain_min, st.domain_max, settings.width, settings.height)
-        looks = _looks(scene)
-        c_look = collider_look(scene.output.model_dump(), settings.colliders)
+        render = _frame_renderer(mi, out, scene, settings)
         poster = _poster(out, frames)
         kept = {}
         own.start_render(len(frames), "rendering beauty")
@@ -177,16 +208,13 @@ def render_beauty(
 
         def images():
             for n in frames:
-                meshes = {m: p for m, p in surfaces[n].items() if m in looks}  # not a leftover of another scene
-                d = frame_scene(mi, camera, (st.domain_min, st.domain_max), meshes, looks,
-                                colliders.get(n), c_look, settings.spp)
-                img = render_frame(mi, d)
+                img = render(n, surfaces[n])
                 if n == poster:
                     kept["poster"] = img
                 own.advance_render()
                 yield img
 
-        fps = st.fps / scene.output.frame_every / settings.stride
+        fps = scene.simulation.fps / scene.output.frame_every / settings.stride
         count = write_mp4(out / BEAUTY_FILE, images(), fps=fps)
         seconds = time.perf_counter() - t0
     write_png(out / BEAUTY_POSTER_FILE, kept["poster"])
