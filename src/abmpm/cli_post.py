@@ -16,6 +16,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from abmpm.cli_common import positive_int, threads_arg
 from abmpm.errors import AbmpmError
 from abmpm.io.blender import write_blend
 from abmpm.io.writers.surface import surface_folder
@@ -32,14 +33,12 @@ BEAUTY_HELP = (
 )
 
 
-def _positive(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
+def _samples(text: str) -> int:
+    return positive_int(text, "samples per pixel")
+
+
+def _stride(text: str) -> int:
+    return positive_int(text, "frames")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -91,15 +90,15 @@ def add_parsers(sub) -> None:
                                    "beauty.mp4 / beauty.png. " + BEAUTY_HELP + ".")
     d.add_argument("dir", metavar="DIR", help="output folder of a run")
     d.add_argument("--beauty", action="store_true", help=BEAUTY_HELP)
-    d.add_argument("--spp", type=_positive, metavar="N", help="--beauty: samples per pixel (default 16)")
+    d.add_argument("--spp", type=_samples, metavar="N", help="--beauty: samples per pixel (default 16)")
     d.add_argument("--size", type=_size, metavar="WxH", help="--beauty: image size (default 640x360)")
-    d.add_argument("--stride", type=_positive, metavar="N",
+    d.add_argument("--stride", type=_stride, metavar="N",
                    help="--beauty: render every N-th surface frame (default 1: all)")
     d.add_argument("--variant", metavar="NAME",
                    help="--beauty: Mitsuba variant (default: cuda_ad_rgb where it works, else scalar_rgb)")
     d.add_argument("--colliders", choices=["metal", "glass"],
                    help="--beauty: the colliders' look (default: the scene's output.beauty_colliders, metal)")
-    d.add_argument("--threads", "-j", type=_positive, metavar="N",
+    d.add_argument("--threads", "-j", type=threads_arg, metavar="N",
                    help="--beauty: CPU threads (default: $ABMPM_THREADS, else every core)")
     d.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_render)
