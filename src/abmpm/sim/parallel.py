@@ -42,9 +42,8 @@ THREADS_ENV = "ABMPM_THREADS"
 MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 # The transfers cost 100-1000 ns a particle (an elastic stress with its SVD, a
 # collider's closest point), so 512 particles outweigh handing a part to another
-# thread (~40 us on a 2-core VM with recorded launches): with MIN_RANGE the level-1
-# range of a small adaptive scene (a few thousand particles) ran on one thread.
-# Measured on the quick paper scenes: 1024 -> 512 gave the panel +7%, jelly +2%.
+# thread (~40 us on a 2-core VM with recorded launches); docs/benchmarks.md, "Small
+# ranges and launch overhead", has the measurements.
 MIN_TRANSFER_RANGE = 512
 EMPTY_BOUND = wp.constant(2**31 - 1)  # the low end of a private grid's reached range before any P2G
 # 4-byte words in a 64-byte cache line: per-thread slots that every particle updates
@@ -275,8 +274,9 @@ def _sums(mv: wp.array, m: wp.array, extra: int, stride: int, bounds: wp.array) 
 def add_thread_sums(sums: ThreadSums, n0: int, n1: int, grid_mv: wp.array(dtype=wp.vec3),
                     grid_m: wp.array(dtype=float)):
     """Nodes [n0, n1): add the extra parts' sums in part order, only where each part's
-    P2G reached, and clear them (nothing on CUDA). In the grid update's own chunk of
-    nodes: a separate pass over the grid cost ~0.3 ms a step more at 1M nodes."""
+    P2G reached, and clear them (nothing on CUDA). Called by the grid update on its
+    own chunk of nodes, not as a pass of its own (docs/benchmarks.md, "The step as
+    named passes")."""
     for t in range(sums.extra):
         lo = wp.max(n0, sums.bounds[REACH_STRIDE * (t + 1)])
         hi = wp.min(n1 - 1, sums.bounds[REACH_STRIDE * (t + 1) + 1])
