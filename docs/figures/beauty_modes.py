@@ -5,7 +5,7 @@ python docs/figures/beauty_modes.py RUNS [FRAME] [SPP]  ->  docs/images/<scene>_
 
 RUNS is a scene's folder of an ``abmpm paper`` comparison, holding ``original/`` and
 ``adaptive/`` run folders with particle frames (e.g. ``abmpm paper --quick --out
-/tmp/exp/paper_quick``, then ``/tmp/exp/paper_quick/paper_panel``). Only FRAME's
+out/paper_quick``, then ``out/paper_quick/paper_panel``). Only FRAME's
 particles are meshed (splashsurf), in a temporary copy (RUNS is not touched); default
 frame: the scene's entry in FRAMES below, else the last one (the last column of the
 splat montage). The colliders take the look of the built-in scene of that name (the
