@@ -22,8 +22,8 @@ from .geometry.sampling import JITTER, particle_volume, sample_body
 from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
-from .sim.materials import MaterialParams, material_params, wave_speed
 from .sim.config import SolverConfig
+from .sim.materials import MaterialParams, material_params, wave_speed
 
 
 def solver_config(scene: Scene, mode: str) -> SolverConfig:

@@ -8,8 +8,8 @@ import numpy as np
 import trimesh
 
 from ..errors import SceneError
-from .meshes import MAX_COORDINATE, load_mesh, place
 from .collider_shapes import REGISTRY as SHAPES
+from .meshes import MAX_COORDINATE, load_mesh, place
 
 
 def collider_mesh(collider, resolve=lambda p: p, where: str = "colliders[0]") -> trimesh.Trimesh:

@@ -35,7 +35,7 @@ from abmpm.errors import OutputError
 from abmpm.io.outdir import SURFACE_RE, SURFACES_DIR
 from abmpm.io.ply import write_mesh_ply
 
-__all__ = ["SURFACES_DIR", "SurfaceMesh", "file_stem", "surface_folder", "surface_meshes", "surface_path", "surfaces_of_folder", "write_surfaces"]
+__all__ = ["SURFACES_DIR", "SurfaceMesh", "file_stem", "import_splashsurf", "surface_meshes", "surface_path", "surfaces_of_folder", "write_surfaces"]
 
 
 
