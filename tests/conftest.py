@@ -21,3 +21,51 @@ def cuda_available():
 if "PYTEST_XDIST_WORKER_COUNT" in os.environ and "ABMPM_THREADS" not in os.environ:
     _workers = int(os.environ["PYTEST_XDIST_WORKER_COUNT"])
     os.environ["ABMPM_THREADS"] = str(max(1, (os.cpu_count() or 1) // _workers))
+
+
+class RegistryCopy:
+    """A copy of the abmpm package in ``root`` in which a test adds one module to a
+    registry, and runs a check script on that copy in a fresh interpreter."""
+
+    def __init__(self, root):
+        import shutil
+        from pathlib import Path
+
+        import abmpm
+
+        self.root = Path(root)
+        self.package = self.root / "abmpm"
+        shutil.copytree(Path(abmpm.__file__).parent, self.package, ignore=shutil.ignore_patterns("__pycache__"))
+
+    def register(self, folder: str, name: str, text: str, last: str) -> None:
+        """Write ``folder/name.py`` and append ``name`` after ``last`` in the folder's
+        ``MODULES``: one new file and exactly one changed line."""
+        (self.package / folder / f"{name}.py").write_text(text)
+        init = self.package / folder / "__init__.py"
+        lines = init.read_text().splitlines()
+        edited = [ln.replace(f'"{last}")', f'"{last}", "{name}")') if ln.startswith("MODULES = ") else ln
+                  for ln in lines]
+        assert sum(a != b for a, b in zip(lines, edited)) == 1  # exactly one line changed
+        init.write_text("\n".join(edited) + "\n")
+
+    def run(self, check: str, *args, timeout: int = 900) -> dict:
+        """Run ``check`` (a script; Warp kernels must live in a file) on the copy; the
+        dict it printed as ``RESULT <json>``."""
+        import json
+        import subprocess
+        import sys
+
+        script = self.root / "check.py"
+        script.write_text(check)
+        run = subprocess.run([sys.executable, str(script), *map(str, args)], cwd=self.root,
+                             env={**os.environ, "PYTHONPATH": str(self.root)}, capture_output=True, text=True,
+                             timeout=timeout)
+        line = [ln for ln in run.stdout.splitlines() if ln.startswith("RESULT ")]
+        assert run.returncode == 0 and line, run.stdout[-3000:] + run.stderr[-3000:]
+        return json.loads(line[0][len("RESULT "):])
+
+
+@pytest.fixture
+def registry_copy(tmp_path):
+    """A copy of the package to add a registry module to (``RegistryCopy``)."""
+    return RegistryCopy(tmp_path)
