@@ -23,6 +23,10 @@ from .colliders import (
 )
 from .grid import BLOCK_NODES, Grid
 
+# two triangles meeting at more than this are a crease: the plane of node_color.py
+# stops there (over a cell, 3 degrees put the plane ~0.05 cells off the surface)
+CREASE_DEGREES = 3.0
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -88,6 +92,10 @@ class ColliderSet:
         self.arrays.mesh = self.mesh.id
         self.face_body_host = np.concatenate(fbody)
         self.arrays.face_body = wp.array(self.face_body_host, dtype=wp.int32, device=device)
+        # the rims and creases, for node_color.py's planes; static colliders only (a
+        # moving collider's field is rebuilt every substep: no time for a second query)
+        self.rims = rim_mesh(self.rest, self.faces, device) if self.static else None
+        self.arrays.rims = self.rims.id if self.rims is not None else wp.uint64(0)
         self.time = None
         self._region = {}  # grid id -> node box last colored
         self.set_time(0.0)
@@ -176,6 +184,31 @@ class ColliderSet:
                         label=f"color {grid.name}", min_range=NODE_RANGE)
 
 
+def rim_mesh(vertices: np.ndarray, faces: np.ndarray, device) -> wp.Mesh | None:
+    """The edges of a triangle mesh where it stops being one plane, as a BVH mesh of
+    sliver triangles (a, b and b moved off the edge by 1e-4 of its length: Warp's
+    query skips degenerate triangles): boundary edges (one triangle: rims of sheets
+    and holes) and creases (two triangles meeting at more than CREASE_DEGREES).
+    None when there is none."""
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    boundary = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    creases = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(CREASE_DEGREES)]
+    edges = np.concatenate([boundary.reshape(-1, 2), creases.reshape(-1, 2)])
+    if len(edges) == 0:
+        return None
+    a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
+    e = b - a
+    # any direction across the edge: e x (the axis least aligned with it)
+    axis = np.eye(3)[np.argmin(np.abs(e), axis=1)]
+    off = np.cross(e, axis)
+    off *= (1e-4 * np.linalg.norm(e, axis=1) / np.maximum(np.linalg.norm(off, axis=1), 1e-30))[:, None]
+    points = np.concatenate([a, b, b + off]).astype(np.float32)
+    k = len(edges)
+    tris = np.stack([np.arange(k), np.arange(k) + k, np.arange(k) + 2 * k], axis=1)
+    return wp.Mesh(points=wp.array(points, dtype=wp.vec3, device=device),
+                   indices=wp.array(tris.astype(np.int32).ravel(), dtype=wp.int32, device=device))
+
+
 def empty_colliders(device) -> ColliderArrays:
     s = ColliderArrays()
     s.enabled = 0
@@ -183,6 +216,7 @@ def empty_colliders(device) -> ColliderArrays:
     s.mesh = 0
     s.face_body = wp.zeros(1, dtype=wp.int32, device=device)
     s.bodies = wp.zeros(1, dtype=ColliderBody, device=device)
+    s.rims = wp.uint64(0)
     return s
 
 
@@ -192,6 +226,7 @@ def color_field(n: int, device) -> ColorField:
     f.dist = wp.full(n, FAR, dtype=float, device=device)
     f.dir = wp.zeros(n, dtype=wp.vec3, device=device)
     f.body = wp.full(n, -1, dtype=wp.int32, device=device)
+    f.rim = wp.zeros(n, dtype=float, device=device)
     return f
 
 
@@ -200,7 +235,7 @@ def grow_color_field(f: ColorField, n: int) -> ColorField:
     if f.dist.shape[0] >= n:
         return f
     g = color_field(n, f.dist.device)
-    for name in ("dist", "dir", "body"):
+    for name in ("dist", "dir", "body", "rim"):
         wp.copy(getattr(g, name), getattr(f, name), count=getattr(f, name).shape[0])
     return g
 

@@ -42,7 +42,9 @@ from .grid import (
     node_position,
 )
 
-NODE_BAND = 3.5  # cells: nodes this close to a surface get a color (stencil reach 1.5 sqrt(3) ~ 2.6)
+# cells: nodes this close to a surface get a color: the stencil's reach 1.5 sqrt(3) ~ 2.6,
+# and 2 cells more for the bounds of a particle's distance (node_color.py)
+NODE_BAND = 4.5
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
 CONTACT_BAND = 1.0  # cells: nodes this close get the collider's boundary condition
 FAR = 1.0e10
@@ -59,7 +61,10 @@ ON_NODE = 1.0e-2
 RAY_BACKOFF = 2.0e-2
 # cells: a particle stopped before a surface stays this far from it (normal distance)
 STOP_GAP = 5.0 * ON_SURFACE
-
+# |cos| between a point's direction and its closest triangle's normal above which the
+# closest point lies inside the triangle (on an edge or a vertex the direction leans)
+FLAT = wp.constant(1.0 - 1.0e-5)
+RIM_REACH = 2.0  # cells: how far from a node's closest point the search for a rim goes
 
 @wp.struct
 class ColliderBody:
@@ -78,6 +83,7 @@ class ColliderArrays:
     mesh: wp.uint64
     face_body: wp.array(dtype=wp.int32)
     bodies: wp.array(dtype=ColliderBody)
+    rims: wp.uint64  # static colliders: their rims and creases as segments (0: none, node_color.py)
 
 
 @wp.struct
@@ -87,6 +93,7 @@ class ColorField:
     dist: wp.array(dtype=float)  # flat, indexed like the grid's nodes
     dir: wp.array(dtype=wp.vec3)
     body: wp.array(dtype=wp.int32)
+    rim: wp.array(dtype=float)  # from the closest point along the surface to its nearest rim (node_color.py)
 
 
 @wp.func
@@ -192,6 +199,8 @@ class Color:
     surface_point: wp.vec3  # closest surface point
     surface_side: wp.vec3  # unit direction from surface_point to the particle
     body: int  # -1 when farther than PARTICLE_BAND cells
+    face: int  # the triangle of surface_point
+    flat: int  # 1: surface_point lies inside the triangle (the direction is its normal)
 
 
 @wp.func
@@ -235,6 +244,8 @@ def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: fl
             if wp.dot(c.surface_side, side) < 0.0:
                 c.surface_side = -c.surface_side
         c.body = colliders.face_body[q.face]
+        c.face = q.face
+        c.flat = int(wp.abs(wp.dot(c.surface_side, wp.mesh_eval_face_normal(colliders.mesh, q.face))) > FLAT)
     return c
 
 
@@ -304,6 +315,19 @@ def color_particles(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtyp
 
 
 @wp.func
+def rim_distance(colliders: ColliderArrays, g: GridSpec, col: Color):
+    """How far the surface around a node's closest point is one plane: the distance
+    from it to the nearest rim or crease of a static collider, at most RIM_REACH cells
+    (0 where the point is on an edge, or the colliders move)."""
+    if colliders.rims == wp.uint64(0) or col.flat == 0:
+        return 0.0
+    q = wp.mesh_query_point_no_sign(colliders.rims, col.surface_point, RIM_REACH * g.dx)
+    if q.result:
+        return wp.length(col.surface_point - wp.mesh_eval_position(colliders.rims, q.face, q.u, q.v))
+    return RIM_REACH * g.dx
+
+
+@wp.func
 def color_node(colliders: ColliderArrays, g: GridSpec, f: ColorField, n: int, c: wp.vec3i):
     xi = node_position(g, c)
     col = color_point(colliders, g, xi, NODE_BAND * g.dx, wp.vec3(0.0))
@@ -311,10 +335,12 @@ def color_node(colliders: ColliderArrays, g: GridSpec, f: ColorField, n: int, c:
         f.dist[n] = wp.length(xi - col.surface_point)
         f.dir[n] = col.surface_side
         f.body[n] = col.body
+        f.rim[n] = rim_distance(colliders, g, col)
     else:
         f.dist[n] = FAR
         f.dir[n] = wp.vec3(0.0)
         f.body[n] = -1
+        f.rim[n] = 0.0
 
 
 @wp.kernel

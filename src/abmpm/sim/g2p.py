@@ -28,10 +28,11 @@ from .colliders import (
     rigid_velocity,
     stop_crossing,
 )
-from .grid import GridSpec
+from .grid import GridSpec, node_index
 from .materials import ALL_MODELS, MaterialParams, dispatch
+from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes
 from .state import ParticleArrays
-from .stencil import STORAGE, offset_at, weight_at
+from .stencil import STORAGE, Stencil, offset_at, weight_at
 from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
@@ -51,27 +52,50 @@ def clamp_to_domain(g: GridSpec, x: wp.vec3):
 
 
 @wp.func
-def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, s: ParticleArrays, p: int, xp: wp.vec3,
-           xn: wp.vec3, new_v: wp.vec3, dt: float):
-    """CPIC advection from xp to xn: stop at the surface on the particle's own side,
-    and color the particle for the next step. Returns (position, velocity)."""
+def lend_boundary_velocity(g: GridSpec, st: Stencil, grid_v: wp.array(dtype=wp.vec3), mask: int, v_bar: wp.vec3):
+    """Eqs. 24-25: what the incompatible nodes of ``mask`` change in the gathered
+    velocity and B (Eq. 6) when each lends v_bar instead of its own velocity.
+
+    A function of its own, called only for a particle with an incompatible node:
+    Warp declares (and zeroes) every temporary of a kernel at its top, so these 27
+    unrolled nodes inline in the G2P kernel cost every particle their temporaries."""
+    dv = wp.vec3(0.0)
+    dB = wp.mat33(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                if node_bit(mask, i, j, k) == 0.0:
+                    weight = weight_at(st, i, j, k)
+                    d = v_bar - grid_v[node_index(g, st.base[0] + i, st.base[1] + j, st.base[2] + k)]
+                    dv += weight * d
+                    dB += weight * wp.outer(d, offset_at(g, st, i, j, k))
+    return dv, dB
+
+
+@wp.func
+def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, surface_point: wp.vec3,
+           surface_side: wp.vec3, xp: wp.vec3, xn: wp.vec3, new_v: wp.vec3, dt: float):
+    """CPIC advection from xp to xn of a particle with color (surface_point,
+    surface_side, cb): stop at the surface on the particle's own side, and color the
+    particle for the next step. Returns (position, velocity, color). (Values, not the
+    particle struct: Warp copies a struct argument into a function it does not inline.)"""
     # A particle farther from every surface than it moves (relative to the collider)
     # cannot cross one: only the others cast the ray. A particle outside the band
     # casts one only if it moved farther than the band (a CFL violation).
     x_end = xn
     v_end = new_v
-    cb = s.surface_body[p]
     reach = PARTICLE_BAND * g.dx
     dist = PARTICLE_BAND * g.dx
     side = xp - xn  # on the surface with no remembered side: it came from behind its motion
     move = wp.length(xn - xp)
     if cb >= 0:
         move = move + dt * wp.length(rigid_velocity(colliders.bodies[cb], xp))
-        dist = wp.length(xp - s.surface_point[p])
+        dist = wp.length(xp - surface_point)
         reach = dist + move + 0.01 * g.dx
-        side = s.surface_side[p]
-    if move >= dist - 0.01 * g.dx:
-        hit = stop_crossing(colliders, g, xp, xn, dt, cb, s.surface_side[p])
+        side = surface_side
+    # a color read from the nodes may overstate the distance by NODE_COLOR_TOL cells
+    if move >= dist - (0.01 + NODE_COLOR_TOL) * g.dx:
+        hit = stop_crossing(colliders, g, xp, xn, dt, cb, surface_side)
         if hit.hit != 0:
             x_end = hit.x
             v_end = boundary_velocity(colliders, hit.body, hit.n, x_end, new_v)
@@ -81,13 +105,12 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, s: Particl
     if near_surface(color, g, x_end):
         # color for the next step's transfers; the new closest point lies within the
         # old distance plus the motion (triangle inequality)
-        c = color_point(colliders, g, x_end, wp.min(reach, PARTICLE_BAND * g.dx), side)
-        if c.body < 0 and reach < PARTICLE_BAND * g.dx:
-            c = color_point(colliders, g, x_end, PARTICLE_BAND * g.dx, side)
-    s.surface_point[p] = c.surface_point
-    s.surface_side[p] = c.surface_side
-    s.surface_body[p] = c.body
-    return x_end, v_end
+        c = color_from_nodes(color, g, x_end, side, cb >= 0)
+        if c.body == NEEDS_QUERY:
+            c = color_point(colliders, g, x_end, wp.min(reach, PARTICLE_BAND * g.dx), side)
+            if c.body < 0 and reach < PARTICLE_BAND * g.dx:
+                c = color_point(colliders, g, x_end, PARTICLE_BAND * g.dx, side)
+    return x_end, v_end, c
 
 
 def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
@@ -138,14 +161,9 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
                     # the particle's velocity advanced by gravity like the grid's, then
                     # projected by the collider's boundary type
                     v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
-                    for i in range(3):
-                        for j in range(3):
-                            for k in range(3):
-                                if node_bit(mask, i, j, k) == 0.0:
-                                    weight = weight_at(st, i, j, k)
-                                    dv = v_bar - grid_v[wp.static(node_at)(g, st, i, j, k)]
-                                    new_v += weight * dv
-                                    B += weight * wp.outer(dv, offset_at(g, st, i, j, k))
+                    dv, dB = lend_boundary_velocity(g, st, grid_v, mask, v_bar)
+                    new_v += dv
+                    B += dB
         # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
         new_C = (4.0 * g.inv_dx * g.inv_dx) * B
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
@@ -153,7 +171,15 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
         xn = clamp_to_domain(g, xp + dt * new_v)
         if wp.static(cpic):
-            xn, new_v = advect(colliders, color, g, s, p, xp, xn, new_v, dt)
+            cb = s.surface_body[p]
+            # a particle with no color that ends its step outside the band, after a move
+            # shorter than the band, stays uncolored: only the others pay for the
+            # call (Warp copies its struct arguments)
+            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * g.dx or near_surface(color, g, xn):
+                xn, new_v, c = advect(colliders, color, g, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
+                s.surface_point[p] = c.surface_point
+                s.surface_side[p] = c.surface_side
+                s.surface_body[p] = c.body
         # The fastest particle, and the most compressed fluid's sound speed over its
         # speed at rest, set the next step's CFL time step; a non-finite velocity
         # reads as infinitely fast, which stops the run.

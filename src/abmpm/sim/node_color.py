@@ -1,0 +1,113 @@
+"""A particle's color from the nodes' color distance field (paper Section 5.3, Eq. 21;
+docs/method.md, "A particle's color from the nodes").
+
+The color of a particle near a collider (closest surface point, the direction from
+it to the particle, the body) is what CPIC's compatibility, its boundary velocity
+(Eq. 23) and the crossing test read. Asking the BVH for the closest point costs
+~1 us a particle on a CPU core; the nodes around the particle already know their
+own closest points (``colliders.color_node``), so most particles can read theirs
+from the nodes at the cost of a few grid lookups:
+
+* **A bound.** Node i's distance D_i is exact, so the ball of radius D_i around it
+  holds no surface point, and D_i - |x - x_i| is a lower bound of the particle's
+  distance (triangle inequality). Nodes along the particle's side, 1 and 2 cells
+  out, make it tight (their balls are large and nearly centred on its normal).
+* **A plane.** Each of those nodes whose ball holds the particle is on its side of
+  every surface; when each of them has its closest point inside a triangle (not on
+  an edge, a rim or a corner: ``Color.flat``) and they all point the same way, the
+  surface under the particle is that plane, and its closest point is its projection
+  onto the tangent plane of the node with the largest ball.
+* **Taken** when, besides, the plane's distance is within NODE_COLOR_TOL cells of the
+  bound and the particle is at least NODE_COLOR_MIN cells from every surface. On a
+  flat piece of a sheet (any tessellation) it is then exact; a hole or an edge that
+  no node sees can make it wrong by at most the tolerance. The crossing test
+  (``g2p.advect``) allows for the tolerance, so the guarantee that no particle changes
+  sides does not rest on the plane: a particle that might reach a surface within its
+  step still casts its ray. Anything else (rims, edges, curved or moving surfaces
+  seen at an angle, particles close to a surface) asks the BVH.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .colliders import NODE_BAND, PARTICLE_BAND, Color, ColorField
+from .grid import GridSpec, nearest_node_coords, node_index, node_position
+
+wp.set_module_options({"enable_backward": False})
+
+# cells: a color read from the nodes is taken when its distance exceeds the
+# certified lower bound by at most this much; the crossing test allows for it
+NODE_COLOR_TOL = 0.1
+# cells: ... and only for a particle at least this far from every surface (closer,
+# its side decides where the crossing test's ray starts: the BVH gives it)
+NODE_COLOR_MIN = 0.1
+NEEDS_QUERY = wp.constant(-2)  # Color.body of a color the nodes could not vouch for
+FAR_BOUND = wp.constant(-1.0e10)
+# the unit directions of those nodes may differ by this much (per-axis spread, ~6 degrees)
+NODE_COLOR_SPREAD = 0.1
+
+
+@wp.func
+def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
+    """Storage index of node c and D_c - |x - x_c|, a lower bound of x's distance to
+    every surface (D_c is exact within the band, and at least NODE_BAND cells outside
+    it). FAR_BOUND for an inactive node of a sparse grid."""
+    n = node_index(g, c[0], c[1], c[2])
+    if n < 0:
+        return n, FAR_BOUND
+    return n, wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
+
+
+@wp.func
+def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3,
+                     remembered: bool):
+    """The color of x read from the nodes (module docstring), where they vouch for it;
+    else ``body`` NEEDS_QUERY (ask the BVH). ``hint``: the side x had, away from the
+    surface, when ``remembered``; else the nearest node's direction is used. ``body``
+    is -1 when the bound puts x beyond PARTICLE_BAND cells."""
+    c = Color()
+    c.body = NEEDS_QUERY
+    toward = hint
+    if not remembered:
+        n0, b0 = node_ball(f, g, x, nearest_node_coords(g, x))
+        if n0 >= 0 and b0 > 0.0 and f.body[n0] >= 0:
+            toward = f.dir[n0]
+    step = g.dx * wp.normalize(toward)
+    lb = float(FAR_BOUND)
+    plane = int(-1)
+    plane_lb = float(FAR_BOUND)
+    plane_x = wp.vec3(0.0)
+    lo = wp.vec3(1.0)  # per-axis bounds of the directions of the nodes whose balls hold x
+    hi = wp.vec3(-1.0)
+    flat = int(1)  # every such node's closest point has a plane around it (a rim distance)
+    for k in range(3):
+        node = nearest_node_coords(g, x + float(k) * step)
+        n, b = node_ball(f, g, x, node)
+        lb = wp.max(lb, b)
+        if n >= 0 and b > 0.0 and f.body[n] >= 0:
+            # x lies in the node's ball, so on its side
+            if f.rim[n] <= 0.0:
+                flat = 0
+            lo = wp.min(lo, f.dir[n])
+            hi = wp.max(hi, f.dir[n])
+            if b > plane_lb:
+                plane_lb = b
+                plane = n
+                plane_x = node_position(g, node)
+    if lb >= PARTICLE_BAND * g.dx:
+        c.body = -1
+        return c
+    if plane < 0 or flat == 0 or lb < NODE_COLOR_MIN * g.dx or wp.length(hi - lo) > NODE_COLOR_SPREAD:
+        return c
+    nrm = f.dir[plane]
+    foot = plane_x - f.dist[plane] * nrm
+    d = wp.dot(x - foot, nrm)
+    c.surface_point = x - d * nrm
+    # a point of the surface (the node's plane reaches that far) within the distance
+    # bound's tolerance: the closest point, or off by at most the tolerance
+    if d - lb > NODE_COLOR_TOL * g.dx or wp.length(c.surface_point - foot) >= f.rim[plane]:
+        return c
+    c.surface_side = nrm
+    c.body = f.body[plane]
+    return c
