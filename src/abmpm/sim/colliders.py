@@ -96,13 +96,13 @@ class ColorField:
     rim: wp.array(dtype=float)  # from the closest point along the surface to its nearest rim (node_color.py)
 
 
-@wp.func
+@wp.func(inline=True)
 def rigid_velocity(b: ColliderBody, x: wp.vec3):
     # Eq. 22: v_ir = v_r + w_r x (x_i - x_r)
     return b.velocity + wp.cross(b.omega, x - b.pivot)
 
 
-@wp.func
+@wp.func(inline=True)
 def behind_node(f: ColorField, n: int, xi: wp.vec3, xp: wp.vec3):
     """The node's half of the separation test: x_p lies behind the tangent plane of
     colored node n at xi, (x_p - c_i) . n_i < 0."""
@@ -111,7 +111,7 @@ def behind_node(f: ColorField, n: int, xi: wp.vec3, xp: wp.vec3):
     return wp.dot(xp - ci, ni) < 0.0
 
 
-@wp.func
+@wp.func(inline=True)
 def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, xi: wp.vec3, n: int, dx: float):
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
     if surface_body < 0 or n < 0:
@@ -171,7 +171,7 @@ def nodes_facing(xp: wp.vec3, f: ColorField, g: GridSpec, base: wp.vec3i, fx: wp
     return mask
 
 
-@wp.func
+@wp.func(inline=True)
 def node_bit(mask: int, i: int, j: int, k: int):
     # 1.0 for a compatible node, 0.0 otherwise: branch-free in the transfer loops
     return float((mask >> (9 * i + 3 * j + k)) & 1)
@@ -187,7 +187,7 @@ def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.ve
     return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)
 
 
-@wp.func
+@wp.func(inline=True)
 def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3):
     """Eq. 23: the velocity an incompatible node lends to particle p."""
     body = colliders.bodies[surface_body]
@@ -203,7 +203,7 @@ class Color:
     flat: int  # 1: surface_point lies inside the triangle (the direction is its normal)
 
 
-@wp.func
+@wp.func(inline=True)
 def near_surface(f: ColorField, g: GridSpec, x: wp.vec3):
     # Cheap filter before a closest-point query: can x be within the particle band of a
     # surface? The nearest node's exact distance, less the way from the node to x, is a

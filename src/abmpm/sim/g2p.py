@@ -51,7 +51,7 @@ def clamp_to_domain(g: GridSpec, x: wp.vec3):
     return wp.vec3(wp.clamp(x[0], lo[0], hi[0]), wp.clamp(x[1], lo[1], hi[1]), wp.clamp(x[2], lo[2], hi[2]))
 
 
-@wp.func
+@wp.func(inline=True)
 def lend_boundary_velocity(g: GridSpec, st: Stencil, grid_v: wp.array(dtype=wp.vec3), mask: int, v_bar: wp.vec3):
     """Eqs. 24-25: what the incompatible nodes of ``mask`` change in the gathered
     velocity and B (Eq. 6) when each lends v_bar instead of its own velocity.
@@ -72,7 +72,7 @@ def lend_boundary_velocity(g: GridSpec, st: Stencil, grid_v: wp.array(dtype=wp.v
     return dv, dB
 
 
-@wp.func
+@wp.func(inline=True)
 def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, surface_point: wp.vec3,
            surface_side: wp.vec3, xp: wp.vec3, xn: wp.vec3, new_v: wp.vec3, dt: float):
     """CPIC advection from xp to xn of a particle with color (surface_point,

@@ -48,7 +48,7 @@ FAR_BOUND = wp.constant(-1.0e10)
 NODE_COLOR_SPREAD = 0.1
 
 
-@wp.func
+@wp.func(inline=True)
 def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
     """Storage index of node c and D_c - |x - x_c|, a lower bound of x's distance to
     every surface (D_c is exact within the band, and at least NODE_BAND cells outside
@@ -59,7 +59,7 @@ def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
     return n, wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
 
 
-@wp.func
+@wp.func(inline=True)
 def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3,
                      remembered: bool):
     """The color of x read from the nodes (module docstring), where they vouch for it;
