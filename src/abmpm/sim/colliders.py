@@ -126,7 +126,7 @@ def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int,
 ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
 
 
-@wp.func
+@wp.func(inline=True)
 def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, g: GridSpec,
                        base: wp.vec3i, fx: wp.vec3):
     """Bit (9 i + 3 j + k) set when stencil node (i, j, k) is compatible with the particle."""

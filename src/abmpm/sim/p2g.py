@@ -59,7 +59,7 @@ def scatter(grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), n: 
     wp.atomic_add(grid_m, n, weight * m)
 
 
-@wp.func
+@wp.func(inline=True)
 def own_side_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, level: int,
                   color: ColorField, g: GridSpec, st: Stencil, cmask: wp.array(dtype=wp.int32), p: int):
     # CPIC for a particle near a collider (surface_body >= 0): the stencil nodes on its
