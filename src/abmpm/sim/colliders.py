@@ -32,7 +32,7 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
-from .boundary import boundary_response
+from .boundary import BOUNDARY_STICKY, boundary_response_loaded
 from .grid import (
     GridSpec,
     dense_node_index,
@@ -171,20 +171,47 @@ def node_bit(mask: int, i: int, j: int, k: int):
 
 
 @wp.func
-def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
-    """Boundary condition of the nearest collider on a node within CONTACT_BAND cells."""
+def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int, dt: float):
+    """Arrival limit of the nearest collider on a colored node (docs/method.md, "Contact").
+
+    A node at distance d from the surface may approach it by at most d in one step,
+    v_n >= -d / dt (relative to the collider, n from the surface to the node): the
+    material it carries stops where it arrives, on every grid alike, rather than a
+    cell of that grid's spacing before the surface. Where the limit acts, the normal
+    speed it removes loads Coulomb friction (mu times that speed, never reversing
+    the tangential motion); sticky takes the collider's tangential velocity there.
+    A node the limit does not touch is free; resting material is held by CPIC's
+    incompatible nodes (``boundary_velocity``)."""
     b = f.body[n]
-    if b < 0 or f.dist[n] > CONTACT_BAND * g.dx:
+    if b < 0:
         return v
     body = colliders.bodies[b]
-    return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)
+    v_r = rigid_velocity(body, xi)
+    nrm = f.dir[n]
+    v_rel = v - v_r
+    vn = wp.dot(v_rel, nrm)
+    vn_min = -f.dist[n] / dt  # arrival: v_n dt >= -d
+    if vn >= vn_min:
+        return v
+    vt = v_rel - vn * nrm
+    if body.boundary == BOUNDARY_STICKY:
+        vt = wp.vec3(0.0)
+    elif body.friction > 0.0:
+        vt_len = wp.length(vt)
+        if vt_len > 0.0:
+            vt = vt * wp.max(0.0, 1.0 - body.friction * (vn_min - vn) / vt_len)
+    return v_r + vt + (vn_min + body.separation) * nrm  # + the separating speed c of Eq. 23
 
 
 @wp.func
-def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3):
-    """Eq. 23: the velocity an incompatible node lends to particle p."""
+def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3,
+                      load: float):
+    """Eq. 23: the velocity an incompatible node lends to particle p; ``load`` (a speed)
+    is the normal impulse per unit mass the collider takes besides the particle's
+    approach (its stress, see g2p), which Coulomb friction acts on too."""
     body = colliders.bodies[surface_body]
-    return boundary_response(vp, rigid_velocity(body, xp), surface_side, body.boundary, body.friction, body.separation)
+    return boundary_response_loaded(vp, rigid_velocity(body, xp), surface_side, body.boundary, body.friction,
+                                    body.separation, load)
 
 
 @wp.struct
