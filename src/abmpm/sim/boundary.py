@@ -13,35 +13,23 @@ FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 @wp.func
-def boundary_response_loaded(v: wp.vec3, v_r: wp.vec3, n: wp.vec3, boundary: int, friction: float, separation: float,
-                             load: float):
+def boundary_response(v: wp.vec3, v_r: wp.vec3, n: wp.vec3, boundary: int, friction: float, separation: float):
     """Velocity after contact with a boundary moving at v_r, normal n (into the material).
 
     Sticky: the boundary's velocity. Slip: no relative normal motion either way.
     Separate: approaching normal motion removed, leaving is free. Slip and separate
-    lose tangential speed to Coulomb friction mu (|v_n| + load) (never reversing it)
-    and add the separating speed c n of paper Eq. 23. ``load`` (>= 0, a speed) is the
-    normal impulse per unit mass the boundary takes besides the approach v_n (a
-    CPIC particle's stress on its incompatible nodes, ``colliders.wall_load``).
+    lose tangential speed to Coulomb friction mu |v_n| (never reversing it) and add
+    the separating speed c n of paper Eq. 23.
     """
     if boundary == BOUNDARY_STICKY:
         return v_r
     v_rel = v - v_r
     vn = wp.dot(v_rel, n)
-    if vn >= 0.0 and boundary == BOUNDARY_SEPARATE and load <= 0.0:
+    if vn >= 0.0 and boundary == BOUNDARY_SEPARATE:
         return v
     vt = v_rel - vn * n
-    pressed = load - wp.min(vn, 0.0)  # the normal speed the boundary takes
-    if pressed > 0.0 and friction > 0.0:
+    if vn < 0.0 and friction > 0.0:
         vt_len = wp.length(vt)
         if vt_len > 0.0:
-            vt = vt * wp.max(0.0, 1.0 - friction * pressed / vt_len)
-    if vn >= 0.0 and boundary == BOUNDARY_SEPARATE:
-        return v_r + vt + vn * n  # leaving is free
+            vt = vt * wp.max(0.0, 1.0 - friction * (-vn) / vt_len)
     return v_r + vt + separation * n
-
-
-@wp.func
-def boundary_response(v: wp.vec3, v_r: wp.vec3, n: wp.vec3, boundary: int, friction: float, separation: float):
-    """``boundary_response_loaded`` with no load besides the approach (domain walls)."""
-    return boundary_response_loaded(v, v_r, n, boundary, friction, separation, 0.0)

@@ -32,7 +32,7 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
-from .boundary import BOUNDARY_STICKY, boundary_response_loaded
+from .boundary import boundary_response
 from .grid import (
     GridSpec,
     dense_node_index,
@@ -171,47 +171,20 @@ def node_bit(mask: int, i: int, j: int, k: int):
 
 
 @wp.func
-def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int, dt: float):
-    """Arrival limit of the nearest collider on a colored node (docs/method.md, "Contact").
-
-    A node at distance d from the surface may approach it by at most d in one step,
-    v_n >= -d / dt (relative to the collider, n from the surface to the node): the
-    material it carries stops where it arrives, on every grid alike, rather than a
-    cell of that grid's spacing before the surface. Where the limit acts, the normal
-    speed it removes loads Coulomb friction (mu times that speed, never reversing
-    the tangential motion); sticky takes the collider's tangential velocity there.
-    A node the limit does not touch is free; resting material is held by CPIC's
-    incompatible nodes (``boundary_velocity``)."""
+def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
+    """Boundary condition of the nearest collider on a node within CONTACT_BAND cells."""
     b = f.body[n]
-    if b < 0:
+    if b < 0 or f.dist[n] > CONTACT_BAND * g.dx:
         return v
     body = colliders.bodies[b]
-    v_r = rigid_velocity(body, xi)
-    nrm = f.dir[n]
-    v_rel = v - v_r
-    vn = wp.dot(v_rel, nrm)
-    vn_min = -f.dist[n] / dt  # arrival: v_n dt >= -d
-    if vn >= vn_min:
-        return v
-    vt = v_rel - vn * nrm
-    if body.boundary == BOUNDARY_STICKY:
-        vt = wp.vec3(0.0)
-    elif body.friction > 0.0:
-        vt_len = wp.length(vt)
-        if vt_len > 0.0:
-            vt = vt * wp.max(0.0, 1.0 - body.friction * (vn_min - vn) / vt_len)
-    return v_r + vt + (vn_min + body.separation) * nrm  # + the separating speed c of Eq. 23
+    return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)
 
 
 @wp.func
-def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3,
-                      load: float):
-    """Eq. 23: the velocity an incompatible node lends to particle p; ``load`` (a speed)
-    is the normal impulse per unit mass the collider takes besides the particle's
-    approach (its stress, see g2p), which Coulomb friction acts on too."""
+def boundary_velocity(colliders: ColliderArrays, surface_body: int, surface_side: wp.vec3, xp: wp.vec3, vp: wp.vec3):
+    """Eq. 23: the velocity an incompatible node lends to particle p."""
     body = colliders.bodies[surface_body]
-    return boundary_response_loaded(vp, rigid_velocity(body, xp), surface_side, body.boundary, body.friction,
-                                    body.separation, load)
+    return boundary_response(vp, rigid_velocity(body, xp), surface_side, body.boundary, body.friction, body.separation)
 
 
 @wp.struct
@@ -281,11 +254,12 @@ def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new:
     out = Crossing()
     out.hit = 0
     out.x = x_new
+    # The mesh stands where it is at the start of the step (time t), so the motion is
+    # tested in its frame: from x_old to x_new less the body's motion over the step,
+    # and a stop is carried along with the body.
     start = x_old
     carry = wp.vec3(0.0)
     if surface_body >= 0:
-        # EXPERIMENT: the ray in the frame of the surface as it is now (time t): the
-        # end point less the body's motion over the step
         carry = dt * rigid_velocity(colliders.bodies[surface_body], x_old)
         start = start + (RAY_BACKOFF * g.dx) * surface_side  # off the surface, on the particle's own side
     seg = x_new - carry - start

@@ -74,7 +74,7 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, s: Particl
         hit = stop_crossing(colliders, g, xp, xn, dt, cb, s.surface_side[p])
         if hit.hit != 0:
             x_end = hit.x
-            v_end = boundary_velocity(colliders, hit.body, hit.n, x_end, new_v, 0.0)
+            v_end = boundary_velocity(colliders, hit.body, hit.n, x_end, new_v)
             side = hit.n
     c = Color()
     c.body = -1
@@ -93,7 +93,6 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, s: Particl
 def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
     ops = dispatch(models)
     deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
-    particle_stress = ops.particle_stress
     stencil, node_at = STORAGE[sparse]
 
     @variant("g2p_sparse" if sparse else "g2p_dense", cpic, models=models)
@@ -136,33 +135,9 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
                 # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
                 mask = cmask[p]
                 if mask != ALL_NODES:
-                    # What the collider takes of the particle's stress: P2G left out
-                    # Eq. 9's stress momentum -dt V0 (4/dx^2) tau (x_i - x_p) at the
-                    # incompatible nodes; taken across the surface only, it is the
-                    # traction tau n times the nodes' reach behind the particle,
-                    # sum w_i (x_i - x_p) . n. Per unit of the mass those nodes lend to,
-                    # its normal part is the load Coulomb friction acts on besides the
-                    # particle's own approach, its tangential part the shear the
-                    # collider must hold (docs/method.md, "Contact").
-                    side = s.surface_side[p]
-                    w_out = float(0.0)
-                    reach = float(0.0)
-                    for i in range(3):
-                        for j in range(3):
-                            for k in range(3):
-                                if node_bit(mask, i, j, k) == 0.0:
-                                    weight = weight_at(st, i, j, k)
-                                    w_out += weight
-                                    reach += weight * wp.dot(side, offset_at(g, st, i, j, k))
-                    v_in = s.v[p] + dt * g.gravity  # advanced by gravity like the grid's
-                    load = float(0.0)
-                    if w_out > 0.0 and reach < 0.0:
-                        tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
-                        kick = ((-dt * s.volume[p] * 4.0 * g.inv_dx * g.inv_dx * reach) / (s.mass[p] * w_out)) * (tau * side)
-                        load = wp.max(0.0, -wp.dot(kick, side))
-                        v_in = v_in + kick - wp.dot(kick, side) * side
+                    # the particle's velocity advanced by gravity like the grid's, then
                     # projected by the collider's boundary type
-                    v_bar = boundary_velocity(colliders, cb, side, xp, v_in, load)
+                    v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
                     for i in range(3):
                         for j in range(3):
                             for k in range(3):

@@ -67,7 +67,7 @@ def grid_update(
             vi = grid_mv[n] / m + dt_now[0] * g.gravity
             xi = node_position(g, node_coords(g, n))
             if colliders.enabled != 0:
-                vi = node_contact(colliders, color, g, vi, xi, n, dt_now[0])
+                vi = node_contact(colliders, color, g, vi, xi, n)
             # the domain walls have the last word: a collider never pushes material through them
             vi = domain_walls(g, xi, vi)
         grid_v[n] = vi
