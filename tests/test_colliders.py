@@ -3,11 +3,16 @@
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 import abmpm
+from abmpm.inputs import rigid_bodies
 from abmpm.scene import model as sm
+from abmpm.sim.collider_set import ColliderSet
+from abmpm.sim.colliders import ColliderArrays, stop_crossing
+from abmpm.sim.grid import GridSpec
 
 G = 9.81
 
@@ -211,3 +216,43 @@ def test_friction_stops_the_block_when_tan_theta_below_mu(mu, slides):
         assert d > 0.5 * a_expected * 0.4**2 * 0.7
     else:
         assert abs(d) < 0.005 and abs(v) < 0.02
+
+
+@wp.kernel
+def _stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.array(dtype=wp.vec3), x_new: wp.array(dtype=wp.vec3),
+                   dt: float, side: wp.vec3, out: wp.array(dtype=wp.vec3), hit: wp.array(dtype=wp.int32)):
+    p = wp.tid()
+    c = stop_crossing(colliders, g, x_old[p], x_new[p], dt, 0, side)
+    out[p] = c.x
+    hit[p] = c.hit
+
+
+def test_crossing_ray_runs_in_the_frame_of_a_moving_sheet():
+    """The mesh stands at its pose of the step's start (time t) while G2P tests the
+    step's motion: a sheet rising at 1 m/s towards a particle 0.1 cells above it that
+    does not move must stop the particle on its own side of the sheet's new place.
+    The ray used to start where the body carries x_old (t + dt) and test it against
+    the mesh at t: it missed, and the particle ended 0.4 cells behind the sheet."""
+    dx, dt, y0 = 0.04, 0.02, 0.5  # the sheet moves 0.5 cells in the step
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(dx=dx),
+        materials=[abmpm.Fluid(name="water")],
+        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))],
+        colliders=[sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5), motion=sm.Motion(keyframes=[
+            sm.Keyframe(time=0.0), sm.Keyframe(time=1.0, translation=(0.0, 1.0, 0.0))]))])
+    colliders = ColliderSet(rigid_bodies(scene), "cpu")
+    colliders.set_time(0.0)
+    g = GridSpec()
+    g.dx, g.inv_dx = dx, 1.0 / dx
+    # a particle that stays put, and one that outruns the sheet by a cell
+    x_old = np.array([[0.5, y0 + 0.1 * dx, 0.5], [0.45, y0 + 0.1 * dx, 0.5]], np.float32)
+    x_new = x_old + np.array([[0.0, 0.0, 0.0], [0.0, 1.5 * dx, 0.0]], np.float32)
+    out = wp.zeros(2, dtype=wp.vec3, device="cpu")
+    hit = wp.zeros(2, dtype=wp.int32, device="cpu")
+    wp.launch(_stop_crossing, 2, inputs=[colliders.arrays, g, wp.array(x_old, dtype=wp.vec3), wp.array(x_new, dtype=wp.vec3),
+                                         dt, wp.vec3(0.0, 1.0, 0.0), out, hit], device="cpu")
+    y = out.numpy()[:, 1] - (y0 + 1.0 * dt)  # height above the sheet at t + dt
+    # stopped STOP_GAP (0.005 cells) in front of the moved sheet, to float32 round-off
+    assert hit.numpy()[0] == 1 and 0.0 < y[0] < 0.01 * dx, y
+    # the particle that outruns the sheet is left alone
+    assert hit.numpy()[1] == 0 and np.allclose(out.numpy()[1], x_new[1])

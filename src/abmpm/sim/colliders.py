@@ -265,11 +265,15 @@ def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new:
     out = Crossing()
     out.hit = 0
     out.x = x_new
+    # The mesh stands where it is at the start of the step (time t), so the motion is
+    # tested in its frame: from x_old to x_new less the body's motion over the step,
+    # and a stop is carried along with the body.
     start = x_old
+    carry = wp.vec3(0.0)
     if surface_body >= 0:
-        start = x_old + dt * rigid_velocity(colliders.bodies[surface_body], x_old)  # where x_old is carried by the body
+        carry = dt * rigid_velocity(colliders.bodies[surface_body], x_old)
         start = start + (RAY_BACKOFF * g.dx) * surface_side  # off the surface, on the particle's own side
-    seg = x_new - start
+    seg = x_new - carry - start
     L = wp.length(seg)
     if L < 1.0e-9 * g.dx:
         return out
@@ -289,7 +293,7 @@ def stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.vec3, x_new:
         # The stop lies between the start (on the particle's side) and the first hit,
         # so it is on the particle's side of every surface.
         cos_hit = wp.max(-wp.dot(out.n, dirn), 1.0e-3)
-        out.x = start + wp.max(q.t - STOP_GAP * g.dx / cos_hit, 0.0) * dirn
+        out.x = start + wp.max(q.t - STOP_GAP * g.dx / cos_hit, 0.0) * dirn + carry
         out.body = colliders.face_body[q.face]
     return out
 
