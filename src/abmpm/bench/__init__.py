@@ -35,6 +35,7 @@ from ..scene.model import (
 )
 from ..sim.parallel import THREADS_ENV, KernelProfile, default_threads
 from ..simulation import Simulation, choose_device
+from .colors import time_band_colors
 from .interface import run_interface_suite
 
 # (particles, grid cells per side) of the issue's fluid benchmark
@@ -321,6 +322,11 @@ def run_bench(argv: list[str] | None = None) -> dict:
     if args.suite in ("colliders", "all"):
         colliders = time_collider_overhead(device, args.seconds)
         print(f"collider overhead: {colliders}", flush=True)
+        # a band particle's color on curved glass: BVH query against the nodes' field
+        colliders["band_colors"] = [time_band_colors(name, device=device) for name in ("paper_hourglass", "hourglass")]
+        for row in colliders["band_colors"]:
+            print(f"band colors, {row['scene']} ({row['triangles']} triangles): BVH {row['bvh_ns']} ns, "
+                  f"nodes {row['nodes_ns']} ns a band particle (taken {100 * row['taken']:.1f}%)", flush=True)
     interface = run_interface_suite(device) if args.suite == "interface" else {}
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),

@@ -1,0 +1,109 @@
+"""What a particle's color costs near a collider (``abmpm bench --suite colliders``).
+
+A particle within the collider band needs its color every step (closest surface
+point, side, body: ``sim/colliders.py``). Two ways to get it, timed on the same
+points in one run:
+
+* ``bvh``: the BVH's closest-point query, bounded by the particle's distance plus
+  its motion (what every band particle paid before ``sim/node_color.py``);
+* ``nodes``: what G2P does now, the color read from the nodes' field where they
+  vouch for it (``color_from_nodes``), the same BVH query elsewhere.
+
+The points are sampled on the inside of a collider (area-weighted over its
+triangles, 0.05 to 2.6 cells from the surface, the band's extent) so the figure
+is per band particle and does not depend on how much material a scene happens to
+have against its walls. The taken share and the largest distance difference
+between the two answers are reported with the times.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from ..scene.loader import load_scene
+from ..sim.colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point
+from ..sim.grid import GridSpec
+from ..sim.node_color import NEEDS_QUERY, color_from_nodes
+from ..simulation import Simulation
+
+# cells: a band particle's motion in one CFL step (cfl 0.4 of a cell at the fastest
+# particle; a typical one moves less): the bound of the BVH query is distance + this
+MOTION = 0.2
+
+
+@wp.kernel
+def _band_colors(x: wp.array(dtype=wp.vec3), side: wp.array(dtype=wp.vec3), dist: wp.array(dtype=float),
+                 colliders: ColliderArrays, g: GridSpec, f: ColorField, from_nodes: int,
+                 body: wp.array(dtype=wp.int32), found: wp.array(dtype=float)):
+    p = wp.tid()
+    bound = wp.min(dist[p] + (MOTION + 0.01) * g.dx, PARTICLE_BAND * g.dx)
+    body[p] = NEEDS_QUERY
+    if from_nodes != 0:
+        c = color_from_nodes(f, g, x[p], side[p], True)
+        body[p] = c.body
+        found[p] = wp.length(x[p] - c.surface_point)
+    if body[p] == NEEDS_QUERY:
+        q = color_point(colliders, g, x[p], bound, side[p])
+        found[p] = wp.length(x[p] - q.surface_point)
+        if from_nodes == 0:
+            body[p] = q.body
+
+
+def band_points(sim: Simulation, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``count`` points in the band on the side of each triangle facing the centre of
+    the domain (the inside of a glass or a funnel), their side and their distance
+    along the face normal."""
+    rng = np.random.default_rng(seed)
+    tri = sim.colliders.triangles()
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    normal = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(normal, axis=1)
+    normal /= np.maximum(2.0 * area, 1e-30)[:, None]
+    pick = rng.choice(len(tri), size=count, p=area / area.sum())
+    u, v = rng.random(count), rng.random(count)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    on = a[pick] + u[:, None] * (b[pick] - a[pick]) + v[:, None] * (c[pick] - a[pick])
+    n = normal[pick]
+    centre = 0.5 * (np.asarray(sim.scene.simulation.domain_min) + np.asarray(sim.scene.simulation.domain_max))
+    n[np.einsum("ij,ij->i", centre - on, n) < 0.0] *= -1.0
+    dx = sim.solver.grids[0].spec.dx
+    d = rng.uniform(0.05, PARTICLE_BAND, count) * dx
+    # keep the points inside the domain
+    x = np.clip(on + d[:, None] * n, sim.scene.simulation.domain_min, sim.scene.simulation.domain_max)
+    return x.astype(np.float32), n.astype(np.float32), d.astype(np.float32)
+
+
+def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, repeats: int = 5,
+                     device: str = "cpu") -> dict:
+    """ns per band particle of its color by the BVH and from the nodes, on one thread
+    (one ``wp.launch``), best of ``repeats``; the share the nodes vouched for."""
+    sim = Simulation(load_scene(scene_name), device=device, mode="original")
+    sim.step()  # colors the nodes
+    grid = sim.solver.grids[0]
+    x, n, d = band_points(sim, count)
+    xs, ns, ds = (wp.array(a, dtype=t, device=device) for a, t in ((x, wp.vec3), (n, wp.vec3), (d, float)))
+    body = wp.zeros(count, dtype=wp.int32, device=device)
+    found = {m: wp.zeros(count, dtype=float, device=device) for m in (0, 1)}
+    out = {"scene": scene_name, "triangles": sim.colliders.triangle_count, "points": count}
+    for mode, name in ((0, "bvh"), (1, "nodes")):
+        args = [xs, ns, ds, sim.solver.colliders.arrays, grid.spec, grid.color, mode, body, found[mode]]
+        wp.launch(_band_colors, count, args, device=device)
+        wp.synchronize_device(device)
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            wp.launch(_band_colors, count, args, device=device)
+            wp.synchronize_device(device)
+            best = min(best, time.perf_counter() - t0)
+        out[f"{name}_ns"] = round(1e9 * best / count, 1)
+        if mode == 1:
+            b = body.numpy()
+            out["taken"] = round(float(np.mean(b != int(NEEDS_QUERY))), 3)
+    diff = np.abs(found[0].numpy() - found[1].numpy()) / grid.spec.dx
+    out["largest_distance_difference_cells"] = round(float(diff.max()), 4)
+    out["speedup"] = round(out["bvh_ns"] / out["nodes_ns"], 2)
+    return out
