@@ -70,7 +70,7 @@ def band_points(sim: Simulation, count: int, seed: int = 0) -> tuple[np.ndarray,
     n = normal[pick]
     centre = 0.5 * (np.asarray(sim.scene.simulation.domain_min) + np.asarray(sim.scene.simulation.domain_max))
     n[np.einsum("ij,ij->i", centre - on, n) < 0.0] *= -1.0
-    dx = sim.solver.grids[0].spec.dx
+    dx = sim.solver.grid.spec.dx
     d = rng.uniform(0.05, PARTICLE_BAND, count) * dx
     # keep the points inside the domain
     x = np.clip(on + d[:, None] * n, sim.scene.simulation.domain_min, sim.scene.simulation.domain_max)
@@ -83,14 +83,14 @@ def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, 
     (one ``wp.launch``), best of ``repeats``; the share the nodes vouched for."""
     sim = Simulation(load_scene(scene_name), device=device, mode="original")
     sim.step()  # colors the nodes
-    grid = sim.solver.grids[0]
+    grid = sim.solver.grid  # the coarse grid (original mode: the only one)
     x, n, d = band_points(sim, count)
     xs, ns, ds = (wp.array(a, dtype=t, device=device) for a, t in ((x, wp.vec3), (n, wp.vec3), (d, float)))
     body = wp.zeros(count, dtype=wp.int32, device=device)
     found = {m: wp.zeros(count, dtype=float, device=device) for m in (0, 1)}
     out = {"scene": scene_name, "triangles": sim.colliders.triangle_count, "points": count}
     for mode, name in ((0, "bvh"), (1, "nodes")):
-        args = [xs, ns, ds, sim.solver.colliders.arrays, grid.spec, grid.color, mode, body, found[mode]]
+        args = [xs, ns, ds, sim.colliders.arrays, grid.spec, grid.color, mode, body, found[mode]]
         wp.launch(_band_colors, count, args, device=device)
         wp.synchronize_device(device)
         best = float("inf")
