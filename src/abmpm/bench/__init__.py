@@ -38,6 +38,7 @@ from ..simulation import Simulation, choose_device
 from .colors import time_band_colors
 from .interface import run_interface_suite
 
+ROUNDS = 3  # collider overhead: alternating timed rounds per case
 # (particles, grid cells per side) of the fluid benchmark
 FLUID_CASES = {"cpu": [(100_000, 64), (400_000, 128)], "cuda": [(100_000, 64), (400_000, 128), (1_000_000, 128)]}
 
@@ -191,10 +192,15 @@ def time_collider_overhead(device: str, seconds: float) -> dict:
         on_sheet = Scene(bodies=[BoxBody(material="fluid", min=tuple(lifted), max=tuple(lifted + size))],
                          colliders=[sheet], **base)
         row = {}
-        for name, scene in (("without", on_floor), ("with", on_sheet)):
-            sim = Simulation(scene, device=device)
-            sps, _ = time_simulation(sim, seconds)
-            row[name] = {"steps_per_s": round(sps, 2), "particles": sim.particle_count,
+        sims = {"without": Simulation(on_floor, device=device), "with": Simulation(on_sheet, device=device)}
+        best = {name: 0.0 for name in sims}
+        # the two alternate, best of ROUNDS each: the VM's speed drifts by tens of
+        # percent over a minute, and one pass each read ratios from 0.77 to 1.05
+        for _ in range(ROUNDS):
+            for name, sim in sims.items():
+                best[name] = max(best[name], time_simulation(sim, seconds / ROUNDS)[0])
+        for name, sim in sims.items():
+            row[name] = {"steps_per_s": round(best[name], 2), "particles": sim.particle_count,
                          "triangles": sim.colliders.triangle_count if sim.colliders else 0}
         row["ratio"] = round(row["with"]["steps_per_s"] / row["without"]["steps_per_s"], 3)
         res[layout] = row
