@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import trimesh
 import warp as wp
 
 from ..scene.loader import load_scene
@@ -57,17 +58,9 @@ def band_points(sim: Simulation, count: int, seed: int = 0) -> tuple[np.ndarray,
     the domain (the inside of a glass or a funnel), their side and their distance
     along the face normal."""
     rng = np.random.default_rng(seed)
-    tri = sim.colliders.triangles()
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    normal = np.cross(b - a, c - a)
-    area = 0.5 * np.linalg.norm(normal, axis=1)
-    normal /= np.maximum(2.0 * area, 1e-30)[:, None]
-    pick = rng.choice(len(tri), size=count, p=area / area.sum())
-    u, v = rng.random(count), rng.random(count)
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    on = a[pick] + u[:, None] * (b[pick] - a[pick]) + v[:, None] * (c[pick] - a[pick])
-    n = normal[pick]
+    mesh = trimesh.util.concatenate(sim.colliders.body_meshes())
+    on, face = trimesh.sample.sample_surface(mesh, count, seed=rng)  # area-weighted
+    n = np.array(mesh.face_normals[face])
     centre = 0.5 * (np.asarray(sim.scene.simulation.domain_min) + np.asarray(sim.scene.simulation.domain_max))
     n[np.einsum("ij,ij->i", centre - on, n) < 0.0] *= -1.0
     dx = sim.solver.grid.spec.dx
