@@ -19,6 +19,7 @@ from ..simulation import Simulation
 # (slit width in coarse cells, refinement factor b)
 SLITS = [(0.5, 2), (1.0, 2), (0.75, 3), (1.0, 3), (1.5, 3), (0.75, 4)]
 MODES = ("original", "adaptive", "finest")
+TANK_FACTORS = (2, 3, 4)
 
 # the tank at rest: water density, gravity, a soft bulk modulus; tank size (m)
 RHO, G, K = 1000.0, 9.81, 4.0e4
@@ -77,23 +78,33 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str) -> dict:
     return out
 
 
-def run_tank(seconds: float, device: str) -> dict:
-    """The tank at rest after ``seconds``: the spread of J - J_hydrostatic (1st to 99th
-    percentile, away from the surface and the floor) of the level-1 particles against
-    finest's, and the fastest particle against finest's."""
+def _spread(d: np.ndarray) -> float:
+    return float(np.percentile(d, 99) - np.percentile(d, 1))
+
+
+def run_tank(seconds: float, device: str, b: int = 2) -> dict:
+    """The tank at rest after ``seconds``, refinement factor ``b``: the spread of
+    J - J_hydrostatic (1st to 99th percentile, away from the surface and the floor)
+    of the level-1 particles and of every particle within one coarse cell of the level
+    interface, each against finest's (every particle; those at the same places),
+    the fastest particle against finest's, and the steps."""
     dx = 0.05
     res = {}
     for mode in ("adaptive", "finest"):
-        sim = Simulation(tank_at_rest(mode, dx), device=device)
+        sim = Simulation(tank_at_rest(mode, dx, b), device=device)
         sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
         sim.advance(seconds=seconds)
         p = sim.particles()
-        inner = (p.level == 1) & (p.x[:, 1] < TANK_DEPTH - 2 * dx) & (p.x[:, 1] > 2 * dx)
-        d = p.J[inner] - hydrostatic_J(p.x[inner, 1])
-        res[mode] = {"J_spread": float(np.percentile(d, 99) - np.percentile(d, 1)),
-                     "fastest": float(np.linalg.norm(p.v, axis=1).max())}
-    return {**res, "J_spread_ratio": round(res["adaptive"]["J_spread"] / res["finest"]["J_spread"], 3),
-            "fastest_ratio": round(res["adaptive"]["fastest"] / res["finest"]["fastest"], 3)}
+        inner = (p.x[:, 1] < TANK_DEPTH - 2 * dx) & (p.x[:, 1] > 2 * dx)
+        d = p.J - hydrostatic_J(p.x[:, 1])
+        fine = inner & (p.level == 1)  # finest: every particle is level 1
+        res[mode] = {"J_spread": _spread(d[fine]),
+                     "interface_J_spread": _spread(d[inner & (np.abs(p.x[:, 0] - TANK_W / 2) < dx)]),
+                     "fastest": float(np.linalg.norm(p.v, axis=1).max()), "steps": sim.steps}
+    a, f = res["adaptive"], res["finest"]
+    return {**res, "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
+            "interface_J_ratio": round(a["interface_J_spread"] / f["interface_J_spread"], 3),
+            "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
 
 
 def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
@@ -105,7 +116,9 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x", flush=True)
-    r = results["tank at rest"] = run_tank(0.3, device)
-    print(f"tank at rest, interface through the water: level-1 J spread {r['J_spread_ratio']}x finest's, "
-          f"fastest particle {r['fastest_ratio']}x finest's", flush=True)
+    for b in TANK_FACTORS:
+        r = results[f"tank at rest, b = {b}"] = run_tank(0.3, device, b)
+        print(f"tank at rest, interface through the water, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
+              f"finest's, at the interface {r['interface_J_ratio']}x, fastest particle {r['fastest_ratio']}x "
+              f"finest's, steps {r['steps_ratio']}x", flush=True)
     return results

@@ -31,7 +31,8 @@ import functools
 
 import warp as wp
 
-from .colliders import ALL_NODES, ColorField, compatibility_mask, near_surface, node_bit, nodes_facing
+from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
+from .footprint import FOOTPRINT_NODES, footprint, wider_than_a_cell
 from .grid import BLOCK_NODES, GridSpec, dense_node_index, node_index, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .parallel import EMPTY_BOUND, Reach
@@ -217,13 +218,68 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
     return p2g_overlap
 
 
+@wp.func
+def footprint_touches_active(g: GridSpec, base: wp.vec3i):
+    # a 5x5x5 footprint spans at most 2 blocks per axis: test its corners
+    for a in range(2):
+        for b in range(2):
+            for c in range(2):
+                if node_index(g, base[0] + 4 * a, base[1] + 4 * b, base[2] + 4 * c) >= 0:
+                    return True
+    return False
+
+
+def _make_scatter_footprint(cpic: bool):
+    @wp.func
+    def scatter_footprint(s: ParticleArrays, p: int, g: GridSpec, color: ColorField, dt: float, tau: wp.mat33,
+                          grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach):
+        # A level-0 particle onto the fine grid: Eq. 8 with its footprint's weights
+        # (sim/footprint.py) and the MLS inertia of that kernel in Eq. 10. CPIC node by
+        # node: the particle's color is the exact closest point, on any grid.
+        xp = s.x[p]
+        fp = footprint(g, xp, s.volume[p])
+        if not footprint_touches_active(g, fp.base):
+            return
+        affine = (-dt * s.volume[p]) * (fp.inertia_inv * tau) + s.mass[p] * s.C[p]
+        mv = s.mass[p] * s.v[p]
+        lo = EMPTY
+        hi = int(-1)
+        for i in range(fp.nodes):
+            for j in range(fp.nodes):
+                weight_ij = fp.wx[i] * fp.wy[j]
+                for k in range(fp.nodes):
+                    weight = weight_ij * fp.wz[k]
+                    c = wp.vec3i(fp.base[0] + i, fp.base[1] + j, fp.base[2] + k)
+                    n = node_index(g, c[0], c[1], c[2])
+                    if weight > 0.0 and n >= 0:
+                        dpos = g.origin + wp.vec3(float(c[0]), float(c[1]), float(c[2])) * g.dx - xp
+                        ok = True
+                        if wp.static(cpic):
+                            ok = compatible(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color,
+                                            xp + dpos, n, g.dx)
+                        if ok:
+                            scatter(grid_mv, grid_m, n, weight, mv, affine, dpos, s.mass[p])
+                            lo = wp.min(lo, n)
+                            hi = wp.max(hi, n)
+        if reach.track != 0 and hi >= 0:
+            wp.atomic_min(reach.span, 0, lo)
+            wp.atomic_max(reach.span, 1, hi)
+
+    return scatter_footprint
+
+
 def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
+    scatter_footprint = _make_scatter_footprint(cpic)
+
     @variant("p2g_sparse", cpic, models=models)
     def p2g_sparse(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
                    color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
                    grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
                    tau_store: wp.array(dtype=wp.mat33)):
         p = wp.tid() + first
+        if s.level[p] == 0 and wider_than_a_cell(g, s.volume[p]):
+            scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
+            return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):
             return

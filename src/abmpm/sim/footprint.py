@@ -1,0 +1,128 @@
+"""A level-0 particle on the fine grid: its footprint, not a point (adaptive mode).
+
+A coarse particle stands for a box of material one parent lattice spacing h wide. The
+coarse grid sees it through the quadratic B-spline of spacing dx, wide enough for its
+size. The fine grid (spacing dx/b) is b times finer: seen there as a point, a coarse
+particle is one sample per h^3 = (b/2)^3 fine cells (8 particles per cell), so at
+b = 4 the fine nodes between two coarse particles get, per axis, a third of the
+mass and volume of the nodes on them, and the stress of Eq. 10 pushes on those lumps. Level-1
+particles next to the level interface read that lumpy field (their J scattered up to
+0.15 from hydrostatic in a tank at rest at b = 4; docs/method.md, "The level
+interface against finest").
+
+Here the particle's mass is spread over its box instead: the weight of fine node i is
+the quadratic B-spline averaged over the box,
+
+    W(r) = 1/(2a) * integral_{-a}^{a} N(r - s) ds = (M(r + a) - M(r - a)) / (2a),
+
+per axis, with r = (x_i - x_p)/dx' and a = h / (2 dx') the box's half-width in fine
+cells (b/4 at 8 particles per cell; capped at 1 so that the footprint stays within
+5 nodes per axis), M the integral of N. Like N, W sums to 1 and has zero first moment
+at any position (momentum and affine momentum are transferred exactly), and the
+footprints of a lattice of boxes tile space: their volume field is uniform on the
+fine grid for every b. Its second moment is (1/4 + a^2/3) dx'^2 per axis (N's 1/4
+plus the box's variance), the inertia D of MLS-MPM (Eq. 10) that the stress uses in
+place of the point kernel's dx'^2/4.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .grid import GridSpec
+
+wp.set_module_options({"enable_backward": False})
+
+FOOTPRINT_NODES = 5  # nodes per axis of a footprint of half-width a <= 1 fine cell
+MAX_HALF_WIDTH = 1.0  # fine cells
+vec5 = wp.types.vector(length=FOOTPRINT_NODES, dtype=float)
+
+
+@wp.struct
+class Footprint:
+    base: wp.vec3i  # lowest node of the 5x5x5 footprint
+    wx: vec5  # weights per axis: node base + q along x, y, z
+    wy: vec5
+    wz: vec5
+    nodes: int  # FOOTPRINT_NODES, as a run-time value: loops over it are not unrolled
+    inertia_inv: wp.mat33  # D^-1 of MLS-MPM for this kernel, 1/m^2 (4/dx^2 I for a point)
+
+
+@wp.func
+def spline_integral(t: float):
+    # M(t): the quadratic B-spline N integrated from -infinity to t (piecewise cubic)
+    if t <= -1.5:
+        return 0.0
+    if t <= -0.5:
+        u = t + 1.5
+        return u * u * u / 6.0
+    if t <= 0.5:
+        return 1.0 / 6.0 + 0.75 * (t + 0.5) - (t * t * t + 0.125) / 3.0
+    if t < 1.5:
+        u = 1.5 - t
+        return 1.0 - u * u * u / 6.0
+    return 1.0
+
+
+@wp.func
+def box_weights(X: float, a: float, lo: int):
+    # W(k - X) of nodes k = lo .. lo + 4 (module docstring)
+    w = vec5()
+    nodes = int(FOOTPRINT_NODES)  # a loop Warp does not unroll (compile time)
+    for q in range(nodes):
+        r = float(lo + q) - X
+        w[q] = (spline_integral(r + a) - spline_integral(r - a)) / (2.0 * a)
+    return w
+
+
+@wp.func
+def footprint_base(X: float, a: float, dim: int):
+    # the first node with a nonzero weight, k > X - a - 1.5; clamped to the grid like
+    # stencil_base (only a particle flung out of the domain is ever clamped)
+    return wp.clamp(int(wp.floor(X - a - 1.5)) + 1, 0, dim - FOOTPRINT_NODES)
+
+
+@wp.func
+def half_width(a: float, X: float, lo: float, hi: float):
+    # Next to a domain wall the box shrinks so that the footprint reaches no node
+    # beyond the wall plane's (as a point at half a cell from the wall does not):
+    # those nodes only carry the wall's condition
+    return wp.clamp(wp.min(X - lo, hi - X) - 0.5, 1.0e-3, a)
+
+
+@wp.func
+def box_half_width(g: GridSpec, volume: float):
+    # half the width of a particle's box, in cells of grid g
+    return 0.5 * wp.pow(volume, 1.0 / 3.0) * g.inv_dx
+
+
+@wp.func
+def wider_than_a_cell(g: GridSpec, volume: float):
+    # Points sampled at most one cell apart sum to 1 within 2% under the
+    # quadratic B-spline (at exactly one cell, as b = 2 gives at 8 particles per cell,
+    # exactly); two cells apart (b = 4) the sum swings between 0.5 and 1.5. So only
+    # a box wider than a cell needs its footprint.
+    return box_half_width(g, volume) > 0.5 + 1.0e-3
+
+
+@wp.func
+def footprint(g: GridSpec, x: wp.vec3, volume: float):
+    """The footprint on grid ``g`` of a particle at ``x`` whose box has ``volume``."""
+    a = wp.min(box_half_width(g, volume), MAX_HALF_WIDTH)
+    X = (x - g.origin) * g.inv_dx
+    lo = (g.domain_lo - g.origin) * g.inv_dx
+    hi = (g.domain_hi - g.origin) * g.inv_dx
+    ax = half_width(a, X[0], lo[0], hi[0])
+    ay = half_width(a, X[1], lo[1], hi[1])
+    az = half_width(a, X[2], lo[2], hi[2])
+    fp = Footprint()
+    fp.nodes = FOOTPRINT_NODES
+    fp.base = wp.vec3i(footprint_base(X[0], ax, g.dims[0]), footprint_base(X[1], ay, g.dims[1]),
+                       footprint_base(X[2], az, g.dims[2]))
+    fp.wx = box_weights(X[0], ax, fp.base[0])
+    fp.wy = box_weights(X[1], ay, fp.base[1])
+    fp.wz = box_weights(X[2], az, fp.base[2])
+    s = g.inv_dx * g.inv_dx
+    fp.inertia_inv = wp.diag(wp.vec3(s / (0.25 + ax * ax / 3.0), s / (0.25 + ay * ay / 3.0),
+                                      s / (0.25 + az * az / 3.0)))
+    return fp

@@ -1,0 +1,88 @@
+"""A level-0 particle's footprint on the fine grid (sim/footprint.py): the weights
+against the moments that Eq. 8-10 rely on, and a lattice of boxes against a uniform
+field. Exact identities of the box-averaged quadratic B-spline; the tolerances are
+float32 round-off."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from abmpm.sim.footprint import FOOTPRINT_NODES, footprint
+from abmpm.sim.grid import GridSpec
+
+DIMS = 40
+
+
+@wp.kernel
+def _moments(g: GridSpec, x: wp.array(dtype=wp.vec3), volume: float, out: wp.array2d(dtype=float)):
+    # per particle: sum W, sum W r (3), sum W r_a r_a (3) in cells, D^-1 diagonal (3)
+    p = wp.tid()
+    fp = footprint(g, x[p], volume)
+    X = (x[p] - g.origin) * g.inv_dx
+    for i in range(fp.nodes):
+        for j in range(fp.nodes):
+            for k in range(fp.nodes):
+                w = fp.wx[i] * fp.wy[j] * fp.wz[k]
+                r = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k)) - X
+                out[p, 0] += w
+                for a in range(3):
+                    out[p, 1 + a] += w * r[a]
+                    out[p, 4 + a] += w * r[a] * r[a]
+    for a in range(3):
+        out[p, 7 + a] = fp.inertia_inv[a, a]
+
+
+@wp.kernel
+def _deposit(g: GridSpec, x: wp.array(dtype=wp.vec3), volume: float, field: wp.array3d(dtype=float)):
+    p = wp.tid()
+    fp = footprint(g, x[p], volume)
+    for i in range(fp.nodes):
+        for j in range(fp.nodes):
+            for k in range(fp.nodes):
+                wp.atomic_add(field, fp.base[0] + i, fp.base[1] + j, fp.base[2] + k,
+                              volume * fp.wx[i] * fp.wy[j] * fp.wz[k])
+
+
+def _grid(dx: float) -> GridSpec:
+    g = GridSpec()
+    g.dx, g.inv_dx = dx, 1.0 / dx
+    g.origin = wp.vec3(0.0)
+    g.dims = wp.vec3i(DIMS, DIMS, DIMS)
+    g.domain_lo, g.domain_hi = wp.vec3(-1.0), wp.vec3(2.0)  # far: no wall shrinks a box
+    return g
+
+
+@pytest.mark.parametrize("b", [3, 4])
+def test_footprint_moments(b):
+    # A coarse particle at 8 per cell (box h = dx/2) on the grid of spacing dx/b: the
+    # half-width is a = b/4 fine cells. W sums to 1 (mass), has zero first moment
+    # (momentum and affine momentum) and second moment 1/4 + a^2/3 (the D of MLS-MPM
+    # whose inverse the stress uses), at any position.
+    dxf = 1.0 / DIMS
+    h = b * dxf / 2
+    a = b / 4
+    rng = np.random.default_rng(1)
+    x = (10 + 20 * rng.random((200, 3))) * dxf
+    out = wp.zeros((200, 10), dtype=float, device="cpu")
+    wp.launch(_moments, 200, inputs=[_grid(dxf), wp.array(x, dtype=wp.vec3), h**3, out], device="cpu")
+    m = out.numpy()
+    assert np.allclose(m[:, 0], 1.0, atol=1e-5)
+    assert np.allclose(m[:, 1:4], 0.0, atol=1e-5)
+    assert np.allclose(m[:, 4:7], 0.25 + a * a / 3, atol=1e-5)
+    assert np.allclose(m[:, 7:10], 1.0 / ((0.25 + a * a / 3) * dxf**2), rtol=1e-5)
+
+
+@pytest.mark.parametrize("b", [3, 4])
+def test_a_lattice_of_footprints_is_uniform(b):
+    # Boxes that tile space give every node the same volume (one fine cell's), where
+    # the same particles as points give the nodes from 0.5^3 to 1.5^3 of it at b = 4
+    # (the product of the 1-D sums of points two cells apart): what the footprint is for.
+    dxf = 1.0 / DIMS
+    h = b * dxf / 2
+    n = int(round(24 * dxf / h))
+    c = (np.arange(n) + 0.5) * h + 8 * dxf
+    x = np.stack(np.meshgrid(c, c, c, indexing="ij"), -1).reshape(-1, 3)
+    field = wp.zeros((DIMS, DIMS, DIMS), dtype=float, device="cpu")
+    wp.launch(_deposit, len(x), inputs=[_grid(dxf), wp.array(x, dtype=wp.vec3), h**3, field], device="cpu")
+    inner = field.numpy()[14:26, 14:26, 14:26] / dxf**3
+    assert np.allclose(inner, 1.0, atol=1e-4), (inner.min(), inner.max())
