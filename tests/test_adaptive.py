@@ -249,10 +249,10 @@ def test_families_merge_back_after_leaving_the_region():
 @pytest.mark.parametrize("flip", [False, True], ids=["front-face", "back-face"])
 def test_default_merge_next_to_a_sheet_keeps_its_side(flip):
     """Merging is on by default. A jelly refined in a band falls onto a tilted sheet
-    below it, outside the region, and rests there: its families merge back while they
-    touch the sheet (a merged particle sits at its family's centre of mass), from
-    either face of the sheet. No particle ever ends a step under the sheet, and mass
-    is kept exactly (children of m/8 merge back to m)."""
+    below it, outside the region: its families merge back while they touch the sheet
+    (a merged particle sits at its family's centre of mass), from either face of the
+    sheet. No particle ever ends a step under the sheet, and mass is kept exactly
+    (children of m/8 merge back to m)."""
     rot = (187.0 if flip else 7.0, 0.0, 4.0)
     centre = np.array([0.5, 0.35, 0.5])
     scene = abmpm.Scene(
@@ -267,19 +267,26 @@ def test_default_merge_next_to_a_sheet_keeps_its_side(flip):
     normal = sim.colliders.body_meshes()[0].face_normals[0] * (-1.0 if flip else 1.0)
     assert normal[1] > 0.9  # the side the jelly comes from
     n0, m0 = sim.particle_count, sim.diagnostics()["total_mass"]
-    refined, lowest = 0, np.inf
+    refined, lowest, merged_touching = 0, np.inf, np.inf
     while sim.time < 0.6:
         sim.step()
         p = sim.particles()
         refined = max(refined, int((p.level == 1).sum()))
-        lowest = min(lowest, float(((p.x - centre) @ normal).min()))
+        gap = float(((p.x - centre) @ normal).min())
+        lowest = min(lowest, gap)
+        if not (p.level == 1).any():
+            merged_touching = min(merged_touching, gap)
     d = sim.diagnostics()
-    assert refined > 0 and d["count_per_level"] == [n0, 0]  # split in the band, merged on the sheet
+    assert refined > 0 and d["count_per_level"] == [n0, 0]  # split in the band, merged by the end
     assert d["total_mass"] == m0
-    # never through the sheet, and resting on it at the end: contact acts through grid
-    # nodes, so a resting body's particles stay within about a coarse cell of it
-    rest = float(((sim.particles().x - centre) @ normal).min())
-    assert lowest > 0.0 and rest < 1.5 * scene.simulation.dx, (lowest, rest)
+    # Never through the sheet, and merged while on it: contact acts through grid nodes,
+    # so a body on a sheet has particles within about a coarse cell of it. (Until
+    # 2026-11-26 this read "resting on it at 0.6 s". Since coarse nodes holding level-1
+    # material take a fine cell's contact band the jelly, partly refined when it lands,
+    # loses less energy in the impact and is in its rebound at 0.6 s: its lowest
+    # particle rises to 0.14 m above the sheet (front face; finest mode's to 0.24 m,
+    # original's to 0.12 m).)
+    assert lowest > 0.0 and merged_touching < 1.5 * scene.simulation.dx, (lowest, merged_touching)
 
 
 @pytest.mark.parametrize("factor, rotation, width, gap", [

@@ -6,7 +6,7 @@ finest"). Tolerances are stated inline."""
 import numpy as np
 import pytest
 
-from abmpm.bench.interface import run_slit, run_tank, tank_at_rest
+from abmpm.bench.interface import SEEDS4, run_slit, run_tank, tank_at_rest
 from abmpm.geometry.sampling import JITTER, lattice_spacing
 from abmpm.inputs import sample_scene
 
@@ -65,12 +65,16 @@ def test_tank_at_rest_across_the_level_interface_at_b4():
 @pytest.mark.parametrize("slit_cells", [0.5, 1.0])
 def test_slit_outside_the_paper_drains_like_finest(slit_cells):
     # A plate spanning the box with a slit across it, b = 2, default refinement
-    # (feature criterion, reconstruction, merge), 0.5 s.
-    r = run_slit(slit_cells, 2, 0.5, "cpu")
+    # (feature criterion, reconstruction, merge), 0.5 s. The mass through at one
+    # instant varies with the particle jitter's seed by +-7% in finest mode itself
+    # (1-cell slit, seeds 0-3: 0.0231-0.0266), as much as the bound: each mode is the
+    # mean of four seeds. Seed 0 alone read 0.97 and 0.97 before the coarse grid's
+    # contact band followed the level-1 material (grid_update); the four seeds' means
+    # were 0.87 and 0.89, outside the bound. After: 0.96 and 1.06.
+    r = run_slit(slit_cells, 2, 0.5, "cpu", seeds=SEEDS4)
     assert r["finest"]["through"] > 0.01  # the case is what it says: water does go through
-    # the issue's bound: the outcome within 10% of finest (measured 0.93 and 0.96;
-    # the 0.5-cell case read 1.11 before the jitter and wall fixes)
+    # the issue's bound: the outcome within 10% of finest
     assert abs(r["through_ratio"] - 1.0) < 0.10, r
     # Steps: the issue's goal is 5% above finest, not reached on every case yet
-    # (measured 1.18 and 0.94): 1.25 guards against a compressed band coming back.
+    # (measured 0.90 and 0.82 with one seed): 1.25 guards against a compressed band.
     assert r["steps_ratio"] < 1.25, r

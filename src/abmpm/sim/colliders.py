@@ -178,10 +178,10 @@ def node_bit(mask: int, i: int, j: int, k: int):
 
 
 @wp.func
-def node_contact(colliders: ColliderArrays, f: ColorField, g: GridSpec, v: wp.vec3, xi: wp.vec3, n: int):
-    """Boundary condition of the nearest collider on a node within CONTACT_BAND cells."""
+def node_contact(colliders: ColliderArrays, f: ColorField, v: wp.vec3, xi: wp.vec3, n: int, band: float):
+    """Boundary condition of the nearest collider on a node within ``band`` (m)."""
     b = f.body[n]
-    if b < 0 or f.dist[n] > CONTACT_BAND * g.dx:
+    if b < 0 or f.dist[n] > band:
         return v
     body = colliders.bodies[b]
     return boundary_response(v, rigid_velocity(body, xi), f.dir[n], body.boundary, body.friction, body.separation)

@@ -30,6 +30,11 @@ wp.set_module_options({"enable_backward": False})
 GRID_PAD = 3
 BLOCK = 4  # nodes per block side (sparse grids)
 BLOCK_NODES = BLOCK**3
+# The adaptive coarse grid's overlap marks (P2G): a node that level-0 particles reach
+# (where level-1 particles add to it, Eq. 8), and one that level-1 material reached
+# too (its collider contact band is then a fine cell, grid_update)
+REACHED_BY_LEVEL0 = wp.constant(1)
+HOLDS_LEVEL1 = wp.constant(2)
 
 
 @wp.struct

@@ -11,8 +11,8 @@ from __future__ import annotations
 import warp as wp
 
 from .boundary import boundary_response
-from .colliders import ColliderArrays, ColorField, node_contact
-from .grid import GridSpec, node_coords, node_position
+from .colliders import CONTACT_BAND, ColliderArrays, ColorField, node_contact
+from .grid import HOLDS_LEVEL1, GridSpec, node_coords, node_position
 from .parallel import ThreadSums, add_thread_sums
 
 wp.set_module_options({"enable_backward": False})
@@ -50,6 +50,7 @@ def grid_update(
     grid_v: wp.array(dtype=wp.vec3),
     overlap: wp.array(dtype=wp.int32),  # the coarse grid's overlap marks (adaptive mode)
     clear_overlap: int,
+    fine_dx: float,  # adaptive coarse grid: the fine spacing, the band of a node holding level-1 material
     count: int,  # nodes
     chunk: int,  # nodes per kernel thread
     sums: ThreadSums,  # the other CPU threads' P2G sums
@@ -67,7 +68,11 @@ def grid_update(
             vi = grid_mv[n] / m + dt_now[0] * g.gravity
             xi = node_position(g, node_coords(g, n))
             if colliders.enabled != 0:
-                vi = node_contact(colliders, color, g, vi, xi, n)
+                band = CONTACT_BAND * g.dx
+                if clear_overlap != 0:
+                    if overlap[n] == HOLDS_LEVEL1:
+                        band = CONTACT_BAND * fine_dx
+                vi = node_contact(colliders, color, vi, xi, n, band)
             # the domain walls have the last word: a collider never pushes material through them
             vi = domain_walls(g, xi, vi)
         grid_v[n] = vi

@@ -13,7 +13,8 @@ With colliders, a particle scatters only to the nodes on its side of every surfa
                        nodes only (the overlap of Eq. 8, where coarse particles
                        can feel them); elsewhere nobody gathers from the coarse grid
 ``p2g_sparse``         adaptive, fine block-sparse grid: every particle, to the
-                       active blocks
+                       active blocks; a level-0 particle wider than a fine cell
+                       as its box (``sim/footprint.py``)
 =====================  =========================================================
 
 The stress is evaluated once per step: the two coarse passes keep it per particle,
@@ -33,7 +34,7 @@ import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
 from .footprint import FOOTPRINT_NODES, footprint, wider_than_a_cell
-from .grid import BLOCK_NODES, GridSpec, dense_node_index, node_index, stencil_slots
+from .grid import BLOCK_NODES, HOLDS_LEVEL1, REACHED_BY_LEVEL0, GridSpec, dense_node_index, node_index, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .parallel import EMPTY_BOUND, Reach
 from .state import ParticleArrays
@@ -165,7 +166,7 @@ def _make_p2g_level0(cpic: bool, models: tuple[int, ...]):
             for j in range(3):
                 for k in range(3):
                     n = dense_node_at(g, st, i, j, k)
-                    overlap[n] = 1  # a level-0 particle reaches this node
+                    overlap[n] = REACHED_BY_LEVEL0
                     weight = weight_at(st, i, j, k)
                     if wp.static(cpic):
                         weight = weight * node_bit(mask, i, j, k)
@@ -213,6 +214,8 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
                         weight = weight_at(st, i, j, k)
                         if wp.static(cpic):
                             weight = weight * node_bit(mask, i, j, k)
+                        if weight > 0.0:
+                            overlap[n] = HOLDS_LEVEL1
                         scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
 
     return p2g_overlap

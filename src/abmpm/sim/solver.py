@@ -402,7 +402,7 @@ class MPMSolver:
             self.launcher.launch(grid_update, -(-g.node_count // chunk),
                                  [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
                                   self._occ if coarse_adaptive else self._no_occ, int(coarse_adaptive),
-                                  g.node_count, chunk, private.sums],
+                                  self.grids[-1].dx, g.node_count, chunk, private.sums],
                                  label=f"grid update {g.name}", min_range=64)
             if private.extra > 0:  # every part's reach empty again
                 self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
