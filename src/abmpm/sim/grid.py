@@ -79,8 +79,9 @@ vec8i = wp.types.vector(length=8, dtype=wp.int32)
 
 @wp.func
 def stencil_slots(g: GridSpec, base: wp.vec3i):
-    """Slots of the (at most) 2x2x2 blocks a 3x3x3 stencil at ``base`` spans: one
-    table lookup per block instead of one per node (sparse grids)."""
+    """Slots of the (at most) 2x2x2 blocks a 3x3x3 stencil at ``base`` spans (and a
+    footprint of up to 5 nodes per axis too): one table lookup per block instead of one
+    per node (sparse grids)."""
     s = vec8i()
     b0 = base[0] >> 2
     b1 = base[1] >> 2

@@ -34,7 +34,16 @@ import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
 from .footprint import FOOTPRINT_NODES, footprint, wider_than_a_cell
-from .grid import BLOCK_NODES, HOLDS_LEVEL1, REACHED_BY_LEVEL0, GridSpec, dense_node_index, node_index, stencil_slots
+from .grid import (
+    BLOCK_NODES,
+    HOLDS_LEVEL1,
+    REACHED_BY_LEVEL0,
+    GridSpec,
+    dense_node_index,
+    node_index,
+    stencil_node,
+    stencil_slots,
+)
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .parallel import EMPTY_BOUND, Reach
 from .state import ParticleArrays
@@ -214,22 +223,11 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
                         weight = weight_at(st, i, j, k)
                         if wp.static(cpic):
                             weight = weight * node_bit(mask, i, j, k)
-                        if weight > 0.0:
+                        if weight > 0.0 and overlap[n] != HOLDS_LEVEL1:  # a write only when it changes
                             overlap[n] = HOLDS_LEVEL1
                         scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
 
     return p2g_overlap
-
-
-@wp.func
-def footprint_touches_active(g: GridSpec, base: wp.vec3i):
-    # a 5x5x5 footprint spans at most 2 blocks per axis: test its corners
-    for a in range(2):
-        for b in range(2):
-            for c in range(2):
-                if node_index(g, base[0] + 4 * a, base[1] + 4 * b, base[2] + 4 * c) >= 0:
-                    return True
-    return False
 
 
 def _make_scatter_footprint(cpic: bool):
@@ -241,7 +239,10 @@ def _make_scatter_footprint(cpic: bool):
         # node: the particle's color is the exact closest point, on any grid.
         xp = s.x[p]
         fp = footprint(g, xp, s.volume[p])
-        if not footprint_touches_active(g, fp.base):
+        # its 5 nodes per axis lie in the 2 blocks per axis a 3x3x3 stencil at the same
+        # base spans: one table lookup per block
+        slots = stencil_slots(g, fp.base)
+        if wp.max(slots) < 0:
             return
         affine = (-dt * s.volume[p]) * (fp.inertia_inv * tau) + s.mass[p] * s.C[p]
         mv = s.mass[p] * s.v[p]
@@ -252,10 +253,10 @@ def _make_scatter_footprint(cpic: bool):
                 weight_ij = fp.wx[i] * fp.wy[j]
                 for k in range(fp.nodes):
                     weight = weight_ij * fp.wz[k]
-                    c = wp.vec3i(fp.base[0] + i, fp.base[1] + j, fp.base[2] + k)
-                    n = node_index(g, c[0], c[1], c[2])
+                    n = stencil_node(g, slots, fp.base, i, j, k)
                     if weight > 0.0 and n >= 0:
-                        dpos = g.origin + wp.vec3(float(c[0]), float(c[1]), float(c[2])) * g.dx - xp
+                        c = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k))
+                        dpos = g.origin + c * g.dx - xp
                         ok = True
                         if wp.static(cpic):
                             ok = compatible(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color,
