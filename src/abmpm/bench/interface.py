@@ -30,13 +30,17 @@ RHO, G, K = 1000.0, 9.81, 4.0e4
 TANK_W, TANK_DEPTH, TANK_Z = 0.8, 0.25, 0.2
 
 
-def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04) -> tuple[sm.Scene, float]:
+def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04,
+                    tilt: float = 0.0) -> tuple[sm.Scene, float]:
     """Water falling 0.04 m onto a zero-thickness plate that spans the box; its only
-    way down is a slit ``slit_cells`` coarse cells wide across the box. Returns the
-    scene and the plate's height."""
+    way down is a slit ``slit_cells`` coarse cells wide across the box. ``tilt``
+    (degrees, up to 50) turns the plate about the x axis, across the slit's length: the
+    slit and the plate are then on no grid plane. Returns the scene and the plate's
+    height at its centre."""
     W, Z, yp = 0.4, 0.16, 0.2
     half = (W - slit_cells * dx) / 2
-    plates = [sm.SheetCollider(size=(half, Z + 0.1), center=(c, yp, Z / 2)) for c in (half / 2, W - half / 2)]
+    plates = [sm.SheetCollider(size=(half, Z + 0.1), center=(c, yp, Z / 2), rotation=(tilt, 0.0, 0.0))
+              for c in (half / 2, W - half / 2)]
     scene = sm.Scene(
         simulation=sm.SimulationSettings(domain_max=(W, 0.5, Z), dx=dx, fps=10, max_dt=2e-3,
                                          walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
