@@ -21,7 +21,9 @@ from ..simulation import Simulation
 # 0.0231-0.0266 over seeds 0-3 (+-7%), as large as the differences the matrix is
 # after, so the cheap b = 2 cases take the mean of four seeds; the others one.
 SEEDS4 = (0, 1, 2, 3)
-SLITS = [(0.5, 2, SEEDS4), (1.0, 2, SEEDS4), (0.75, 3, (0,)), (1.0, 3, (0,)), (1.5, 3, (0,)), (0.75, 4, (0,))]
+# (... , tilt of the plate in degrees)
+SLITS = [(0.5, 2, SEEDS4, 0.0), (1.0, 2, SEEDS4, 0.0), (0.75, 3, (0,), 0.0), (1.0, 3, (0,), 0.0),
+         (1.5, 3, (0,), 0.0), (0.75, 4, (0,), 0.0), (0.75, 3, (0,), 20.0)]
 MODES = ("original", "adaptive", "finest")
 TANK_FACTORS = (2, 3, 4)
 
@@ -65,22 +67,26 @@ def hydrostatic_J(y: np.ndarray) -> np.ndarray:
     return (1.0 + 7.0 * RHO * G * np.clip(TANK_DEPTH - y, 0.0, None) / K) ** (-1.0 / 7.0)
 
 
-def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,)) -> dict:
-    """Mass through, steps and wall seconds of one slit case in every mode, each the
-    mean over the particle jitter's ``seeds`` (the single runs' mass through in
-    ``through_seeds``)."""
+def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
+             tilt: float = 0.0) -> dict:
+    """Mass through (below the plate's plane), steps and wall seconds of one slit case
+    in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
+    mass through in ``through_seeds``); ``tilt`` as in ``plate_with_slit``."""
     out = {}
     for mode in MODES:
         runs = []
         for seed in seeds:
-            scene, yp = plate_with_slit(mode, slit_cells, b)
+            scene, yp = plate_with_slit(mode, slit_cells, b, tilt=tilt)
             scene.simulation.seed = seed
             sim = Simulation(scene, device=device)
+            up = sim.colliders.body_meshes()[0].face_normals[0]
+            up = up if up[1] > 0 else -up
+            centre = (0.5 * scene.simulation.domain_max[0], yp, 0.5 * scene.simulation.domain_max[2])
             sim.advance(frames=1)  # kernels compiled, the first frame's split done: not timed
             steps, t0 = sim.steps, time.perf_counter()
             sim.advance(seconds=seconds - sim.time)
             p = sim.particles()
-            runs.append((mass_beyond_plane(p.x, p.mass, (0.0, yp, 0.0), (0.0, -1.0, 0.0)), sim.steps,
+            runs.append((mass_beyond_plane(p.x, p.mass, centre, tuple(-up)), sim.steps,
                          time.perf_counter() - t0, sim.steps - steps, sim.particle_count))
         through, steps, wall, timed, count = (np.mean([r[i] for r in runs]) for i in range(5))
         out[mode] = {"through": round(float(through), 5), "through_seeds": [round(float(r[0]), 5) for r in runs],
@@ -125,9 +131,10 @@ def run_tank(seconds: float, device: str, b: int = 2) -> dict:
 def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results."""
     results = {}
-    for slit, b, seeds in SLITS:
-        r = results[f"slit {slit} cells, b = {b}"] = run_slit(slit, b, seconds, device, seeds)
-        print(f"slit {slit:4} coarse cells, b = {b}: mass through original {r['original']['through']:.4f}  "
+    for slit, b, seeds, tilt in SLITS:
+        name = f"slit {slit} cells, b = {b}" + (f", tilted {tilt:g} deg" if tilt else "")
+        r = results[name] = run_slit(slit, b, seconds, device, seeds, tilt)
+        print(f"{name}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
