@@ -259,7 +259,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
     ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "all"], default="all",
-                    help="all: fluid, adaptive and colliders; interface (not in all, ~8 min on 2 cores): "
+                    help="all: fluid, adaptive and colliders; interface (not in all, ~4 min on 2 cores): "
                          "adaptive against finest on slits outside the paper and a tank at rest")
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
