@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from abmpm.sim.footprint import FOOTPRINT_NODES, footprint
+from abmpm.sim.footprint import footprint, footprint_weights
 from abmpm.sim.grid import GridSpec
 
 DIMS = 40
@@ -17,7 +17,7 @@ DIMS = 40
 def _moments(g: GridSpec, x: wp.array(dtype=wp.vec3), volume: float, out: wp.array2d(dtype=float)):
     # per particle: sum W, sum W r (3), sum W r_a r_a (3) in cells, D^-1 diagonal (3)
     p = wp.tid()
-    fp = footprint(g, x[p], volume)
+    fp = footprint_weights(g, x[p], footprint(g, x[p], volume))
     X = (x[p] - g.origin) * g.inv_dx
     for i in range(fp.nodes):
         for j in range(fp.nodes):
@@ -35,7 +35,7 @@ def _moments(g: GridSpec, x: wp.array(dtype=wp.vec3), volume: float, out: wp.arr
 @wp.kernel
 def _deposit(g: GridSpec, x: wp.array(dtype=wp.vec3), volume: float, field: wp.array3d(dtype=float)):
     p = wp.tid()
-    fp = footprint(g, x[p], volume)
+    fp = footprint_weights(g, x[p], footprint(g, x[p], volume))
     for i in range(fp.nodes):
         for j in range(fp.nodes):
             for k in range(fp.nodes):

@@ -35,6 +35,7 @@ wp.set_module_options({"enable_backward": False})
 
 FOOTPRINT_NODES = 5  # nodes per axis of a footprint of half-width a <= 1 fine cell
 MAX_HALF_WIDTH = 1.0  # fine cells
+WIDER_VOLUME = wp.constant(1.002**3)  # a box's volume over a cell's beyond which it is wider (round-off)
 vec5 = wp.types.vector(length=FOOTPRINT_NODES, dtype=float)
 
 
@@ -45,6 +46,7 @@ class Footprint:
     wy: vec5
     wz: vec5
     nodes: int  # FOOTPRINT_NODES, as a run-time value: loops over it are not unrolled
+    a: wp.vec3  # the box's half-width per axis, fine cells (shrunk next to a domain wall)
     inertia_inv: wp.mat33  # D^-1 of MLS-MPM for this kernel, 1/m^2 (4/dx^2 I for a point)
 
 
@@ -91,38 +93,41 @@ def half_width(a: float, X: float, lo: float, hi: float):
 
 
 @wp.func
-def box_half_width(g: GridSpec, volume: float):
-    # half the width of a particle's box, in cells of grid g
-    return 0.5 * wp.pow(volume, 1.0 / 3.0) * g.inv_dx
-
-
-@wp.func
 def wider_than_a_cell(g: GridSpec, volume: float):
     # Points sampled at most one cell apart sum to 1 within 2% under the
     # quadratic B-spline (at exactly one cell, as b = 2 gives at 8 particles per cell,
     # exactly); two cells apart (b = 4) the sum swings between 0.5 and 1.5. So only
-    # a box wider than a cell needs its footprint.
-    return box_half_width(g, volume) > 0.5 + 1.0e-3
+    # a box wider than a cell (by more than round-off, 0.2%) needs its footprint.
+    return volume > WIDER_VOLUME * g.dx * g.dx * g.dx
 
 
 @wp.func
 def footprint(g: GridSpec, x: wp.vec3, volume: float):
-    """The footprint on grid ``g`` of a particle at ``x`` whose box has ``volume``."""
-    a = wp.min(box_half_width(g, volume), MAX_HALF_WIDTH)
+    """Where the footprint on grid ``g`` of a particle at ``x`` whose box has ``volume``
+    lies, and its inertia: cheap, so that a particle far from the grid's active blocks
+    can be left before ``footprint_weights``."""
+    a = wp.min(0.5 * wp.pow(volume, 1.0 / 3.0) * g.inv_dx, MAX_HALF_WIDTH)
     X = (x - g.origin) * g.inv_dx
     lo = (g.domain_lo - g.origin) * g.inv_dx
     hi = (g.domain_hi - g.origin) * g.inv_dx
-    ax = half_width(a, X[0], lo[0], hi[0])
-    ay = half_width(a, X[1], lo[1], hi[1])
-    az = half_width(a, X[2], lo[2], hi[2])
     fp = Footprint()
     fp.nodes = FOOTPRINT_NODES
-    fp.base = wp.vec3i(footprint_base(X[0], ax, g.dims[0]), footprint_base(X[1], ay, g.dims[1]),
-                       footprint_base(X[2], az, g.dims[2]))
-    fp.wx = box_weights(X[0], ax, fp.base[0])
-    fp.wy = box_weights(X[1], ay, fp.base[1])
-    fp.wz = box_weights(X[2], az, fp.base[2])
+    fp.a = wp.vec3(half_width(a, X[0], lo[0], hi[0]), half_width(a, X[1], lo[1], hi[1]),
+                   half_width(a, X[2], lo[2], hi[2]))
+    fp.base = wp.vec3i(footprint_base(X[0], fp.a[0], g.dims[0]), footprint_base(X[1], fp.a[1], g.dims[1]),
+                       footprint_base(X[2], fp.a[2], g.dims[2]))
     s = g.inv_dx * g.inv_dx
-    fp.inertia_inv = wp.diag(wp.vec3(s / (0.25 + ax * ax / 3.0), s / (0.25 + ay * ay / 3.0),
-                                      s / (0.25 + az * az / 3.0)))
+    fp.inertia_inv = wp.diag(wp.vec3(s / (0.25 + fp.a[0] * fp.a[0] / 3.0), s / (0.25 + fp.a[1] * fp.a[1] / 3.0),
+                                      s / (0.25 + fp.a[2] * fp.a[2] / 3.0)))
     return fp
+
+
+@wp.func
+def footprint_weights(g: GridSpec, x: wp.vec3, fp: Footprint):
+    """``fp`` with the weights of its nodes (module docstring)."""
+    X = (x - g.origin) * g.inv_dx
+    out = fp
+    out.wx = box_weights(X[0], fp.a[0], fp.base[0])
+    out.wy = box_weights(X[1], fp.a[1], fp.base[1])
+    out.wz = box_weights(X[2], fp.a[2], fp.base[2])
+    return out

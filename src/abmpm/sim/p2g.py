@@ -33,7 +33,7 @@ import functools
 import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
-from .footprint import FOOTPRINT_NODES, footprint, wider_than_a_cell
+from .footprint import footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     BLOCK_NODES,
     HOLDS_LEVEL1,
@@ -244,6 +244,7 @@ def _make_scatter_footprint(cpic: bool):
         slots = stencil_slots(g, fp.base)
         if wp.max(slots) < 0:
             return
+        fp = footprint_weights(g, xp, fp)
         affine = (-dt * s.volume[p]) * (fp.inertia_inv * tau) + s.mass[p] * s.C[p]
         mv = s.mass[p] * s.v[p]
         lo = EMPTY
