@@ -271,6 +271,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
+    if reference:  # the yardsticks run in their own folder
+        reference = reference.resolve()
     cases = FLUID_CASES[kind][:1] if args.small else FLUID_CASES[kind]
     if args.suite not in ("fluid", "all"):
         cases = []
