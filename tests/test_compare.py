@@ -22,6 +22,7 @@ from abmpm.compare import (
 from abmpm.compare.core import window_figures, window_frames
 from abmpm.compare.outcomes import (
     cut_gap,
+    swept_by,
     escaped,
     hourglass_outside,
     mass_beyond_plane,
@@ -89,6 +90,24 @@ def test_cut_gap_width_and_roughness():
     assert g2["roughness"] > 0.001
     # nothing on one side: no cut measured
     assert cut_gap(left, (0, 0, 0), (1, 0, 0), 0.02, 0.1)["width"] is None
+
+
+def test_a_cut_is_measured_only_where_the_blade_has_been():
+    """A blade a third of the way down a block: the lower part is whole, sampled at a
+    finer spacing than the cut's gap. Over the whole plane the median "gap" would be that
+    spacing; over what the blade swept it is the cut."""
+    h = 0.01
+    top = np.concatenate([_block((-0.2, 0.1, 0), (-0.05, 0.2, 0.1), h), _block((0.05, 0.1, 0), (0.2, 0.2, 0.1), h)])
+    bottom = _block((-0.2, -0.1, 0), (0.2, 0.1, 0.1), h / 2)  # whole, 5 mm from face to face across the plane
+    x = np.concatenate([top, bottom])
+    blade = (np.array([0.0, 0.3, 0.05]), euler_matrix((0.0, 90.0, 0.0)), 0.2, 0.2)  # the plane x = 0, edge at y = 0.2
+    assert not swept_by(x, blade, margin=0.0).any()
+    blade = (np.array([0.0, 0.2, 0.05]), euler_matrix((0.0, 90.0, 0.0)), 0.2, 0.2)  # edge at y = 0.1
+    swept = swept_by(x, blade, margin=0.02)
+    assert swept.any() and (x[swept, 1] >= 0.12).all() and not (x[~swept, 1] >= 0.12).any()
+    whole_plane = cut_gap(x, (0, 0, 0), (1, 0, 0), bin_size=0.02, band=0.1)["width"]
+    assert whole_plane == pytest.approx(0.005)  # the whole part's spacing decides the median
+    assert cut_gap(x[swept], (0, 0, 0), (1, 0, 0), bin_size=0.02, band=0.1)["width"] == pytest.approx(0.11)
 
 
 def _scene(**kw):
