@@ -37,6 +37,7 @@ from ..sim.parallel import THREADS_ENV, KernelProfile, default_threads
 from ..simulation import Simulation, choose_device
 from .colors import time_band_colors
 from .interface import run_interface_suite
+from .scaling import run_scaling
 
 ROUNDS = 3  # collider overhead: alternating timed rounds per case
 # (particles, grid cells per side) of the issue's fluid benchmark
@@ -258,9 +259,12 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--reference", type=Path, default=None, help="path to mls_mpm_minimal_warp.py")
     ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
-    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "all"], default="all",
-                    help="all: fluid, adaptive and colliders; interface (not in all, ~4 min on 2 cores): "
-                         "adaptive against finest on slits outside the paper and a tank at rest")
+    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "scaling", "all"],
+                    default="all",
+                    help="all: fluid, adaptive and colliders; interface (not in all, ~5 min on 2 cores): "
+                         "adaptive against finest on slits outside the paper, a tank at rest and a free jelly bar; "
+                         "scaling (not in all): a sloshing tank 1-8x as long around the same refined box, "
+                         "the three modes' cost (a plot beside --json)")
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
@@ -336,10 +340,13 @@ def run_bench(argv: list[str] | None = None) -> dict:
             print(f"band colors, {row['scene']} ({row['triangles']} triangles): BVH {row['bvh_ns']} ns, "
                   f"nodes {row['nodes_ns']} ns a band particle (taken {100 * row['taken']:.1f}%)", flush=True)
     interface = run_interface_suite(device) if args.suite == "interface" else {}
+    scaling = []
+    if args.suite == "scaling":
+        scaling = run_scaling(device, plot=args.json.with_suffix(".png") if args.json else None)
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
-        "adaptive": adaptive, "colliders": colliders, "interface": interface,
+        "adaptive": adaptive, "colliders": colliders, "interface": interface, "scaling": scaling,
     }
     if args.json:
         write_json(args.json, result)

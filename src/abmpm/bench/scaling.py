@@ -1,0 +1,96 @@
+"""What a run costs as the scene grows around a refined region of fixed size
+(``abmpm bench --suite scaling``; the issue "cost follows the refined region, not the
+domain: a time step per level").
+
+A tank of water sloshing towards its right wall, 1, 2, 4 and 8 times 0.32 m long, with
+the same refinement box (0.16 m wide) at its right end in every length. Each length
+runs in original, adaptive and finest mode, one after the other in the same process;
+the figure is wall-clock seconds per simulated second (kernel compilation and the
+first step outside the timing). If adaptive cost follows the refined region,
+adaptive / original falls towards 1 as the tank grows and finest / adaptive rises; if
+it follows the domain (every particle at the fine time step), adaptive / original
+stays near b.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..scene import model as sm
+from ..simulation import Simulation
+
+LENGTHS = (1, 2, 4, 8)  # tank length in units of BASE
+BASE, BOX = 0.32, 0.16  # m: the shortest tank; the refinement box's width at the right end
+HEIGHT, DEPTH, WIDTH = 0.24, 0.1, 0.08  # m: the tank's height, the water's depth, the tank's depth (z)
+DX, FACTOR = 0.02, 2  # coarse spacing, refinement factor b
+SLOSH = 0.5  # m/s: the water's initial speed towards the right wall
+MODES = ("original", "adaptive", "finest")
+
+
+def sloshing_tank(length: int, mode: str = "adaptive") -> sm.Scene:
+    """The tank ``length`` x BASE long, its water moving right at SLOSH, the refinement
+    box over its last BOX metres."""
+    L = BASE * length
+    return sm.Scene(
+        name=f"scaling_tank_{length}x",
+        simulation=sm.SimulationSettings(
+            domain_max=(L, HEIGHT, WIDTH), dx=DX, fps=20, walls={"type": "slip"},
+            refinement={"mode": mode, "factor": FACTOR, "boxes": [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))]}),
+        materials=[sm.Fluid(name="water", bulk_modulus=4.0e4)],
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(L, DEPTH, WIDTH), velocity=(SLOSH, 0.0, 0.0))],
+    )
+
+
+def time_tank(length: int, mode: str, seconds: float, device: str) -> dict:
+    sim = Simulation(sloshing_tank(length, mode), device=device)
+    sim.step()  # compile and warm up outside the timing
+    t_sim, steps0 = sim.time, sim.steps
+    t0 = time.perf_counter()
+    sim.advance(seconds=seconds)
+    wall = time.perf_counter() - t0
+    return {"wall_per_sim_s": round(wall / (sim.time - t_sim), 3), "steps_per_sim_s": round((sim.steps - steps0)
+                                                                                           / (sim.time - t_sim), 1),
+            "particles": sim.particle_count}
+
+
+def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path | None = None) -> list[dict]:
+    """Every length in every mode, printed as it finishes; with ``plot`` a PNG of the
+    cost against the tank's length."""
+    rows = []
+    for length in lengths:
+        row = {"length_m": round(BASE * length, 3), **{m: time_tank(length, m, seconds, device) for m in MODES}}
+        o, a, f = (row[m]["wall_per_sim_s"] for m in MODES)
+        row["adaptive_over_original"] = round(a / o, 3)
+        row["finest_over_adaptive"] = round(f / a, 3)
+        rows.append(row)
+        print(f"tank {row['length_m']} m: wall s per simulated s original {o}, adaptive {a}, finest {f} "
+              f"(particles {row['original']['particles']} / {row['adaptive']['particles']} / "
+              f"{row['finest']['particles']}; steps per simulated s {row['original']['steps_per_sim_s']} / "
+              f"{row['adaptive']['steps_per_sim_s']} / {row['finest']['steps_per_sim_s']}) -> adaptive / original "
+              f"{row['adaptive_over_original']}, finest / adaptive {row['finest_over_adaptive']}", flush=True)
+    if plot is not None:
+        plot_scaling(rows, plot)
+    return rows
+
+
+def plot_scaling(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.0))
+    x = [r["length_m"] for r in rows]
+    for mode in MODES:
+        ax.plot(x, [r[mode]["wall_per_sim_s"] for r in rows], "o-", label=mode)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel(f"tank length (m); refined box {BOX} m wide at its end")
+    ax.set_ylabel("wall s per simulated s")
+    ax.set_title("Cost against the size of the scene")
+    ax.legend()
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

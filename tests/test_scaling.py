@@ -1,0 +1,41 @@
+"""``abmpm bench --suite scaling`` (issue "cost follows the refined region"): the tank
+grows around a refinement box of fixed size, and the suite runs end to end."""
+
+import json
+
+import numpy as np
+import pytest
+
+from abmpm.bench import run_bench
+from abmpm.bench.scaling import BASE, BOX, LENGTHS, sloshing_tank
+from abmpm.simulation import Simulation
+
+
+def test_the_tank_grows_and_its_refined_box_does_not():
+    for length in LENGTHS:
+        sc = sloshing_tank(length)
+        L = sc.simulation.domain_max[0]
+        assert L == pytest.approx(BASE * length)
+        (lo, hi), = sc.simulation.refinement.boxes
+        assert (hi[0] - lo[0], hi[0]) == pytest.approx((BOX, L))  # the same box, at the right wall
+    # the water fills the tank's length: original mode's particles grow with it
+    counts = [Simulation(sloshing_tank(n, "original"), device="cpu").particle_count for n in (1, 2)]
+    assert counts[1] == 2 * counts[0]
+
+
+@pytest.mark.slow
+def test_the_scaling_suite_runs_end_to_end(tmp_path, monkeypatch):
+    import abmpm.bench.scaling as scaling
+
+    real = scaling.run_scaling  # one length, 0.01 s: the suite's path, not its figures
+    monkeypatch.setattr("abmpm.bench.run_scaling", lambda device, plot=None: real(device, 0.01, (1,), plot))
+    out = tmp_path / "scaling.json"
+    result = run_bench(["--device", "cpu", "--suite", "scaling", "--json", str(out)])
+    row, = result["scaling"]
+    for mode in ("original", "adaptive", "finest"):
+        assert row[mode]["wall_per_sim_s"] > 0 and row[mode]["steps_per_sim_s"] > 0
+    # adaptive holds more particles than original and fewer than finest
+    assert row["original"]["particles"] < row["adaptive"]["particles"] < row["finest"]["particles"]
+    assert json.loads(out.read_text())["scaling"][0]["length_m"] == pytest.approx(BASE)
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert np.isfinite(row["adaptive_over_original"])
