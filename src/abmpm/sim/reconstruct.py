@@ -46,6 +46,7 @@ from __future__ import annotations
 import warp as wp
 
 from .grid import GridSpec, nearest_node_coords, node_coords, node_index
+from .parallel import EMPTY_BOUND, Reach, ThreadSums, add_thread_sums
 from .materials import MaterialParams, volume_ratio
 from .state import ParticleArrays
 from .stencil import bspline_weights, stencil_base, stencil_offset
@@ -85,10 +86,11 @@ WALL_REACH = wp.constant(2.5)
 
 
 @wp.func
-def scatter_image(g: GridSpec, f: SurfaceField, xp: wp.vec3, m: float, vol: float, flip: wp.vec3):
+def scatter_image(g: GridSpec, grad: wp.array(dtype=wp.vec3), volume: wp.array(dtype=float), xp: wp.vec3, m: float,
+                  vol: float, flip: wp.vec3):
     # one image of a particle: its mass gradient (Eq. 16) and volume on the coarse
     # nodes; ``flip`` is -1 on the axes it was mirrored across a wall, which mirrors
-    # the gradient with it
+    # the gradient with it. Returns the storage span it reached.
     base = stencil_base(g, xp)
     fx = stencil_offset(g, xp, base)
     w = bspline_weights(fx)
@@ -97,8 +99,9 @@ def scatter_image(g: GridSpec, f: SurfaceField, xp: wp.vec3, m: float, vol: floa
         for j in range(3):
             for k in range(3):
                 n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
-                wp.atomic_add(f.grad, n, (m * g.inv_dx) * wp.cw_mul(flip, weight_gradient(w, dw, i, j, k)))
-                wp.atomic_add(f.volume, n, vol * w[i, 0] * w[j, 1] * w[k, 2])
+                wp.atomic_add(grad, n, (m * g.inv_dx) * wp.cw_mul(flip, weight_gradient(w, dw, i, j, k)))
+                wp.atomic_add(volume, n, vol * w[i, 0] * w[j, 1] * w[k, 2])
+    return node_index(g, base[0], base[1], base[2]), node_index(g, base[0] + 2, base[1] + 2, base[2] + 2)
 
 
 @wp.func
@@ -124,7 +127,9 @@ def mirrored(g: GridSpec, xp: wp.vec3, image: int, reach: float):
 
 
 @wp.kernel
-def scatter_surface_mass(s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec, f: SurfaceField):
+def scatter_surface_mass(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                         near: wp.array3d(dtype=wp.int32), grad: wp.array(dtype=wp.vec3),
+                         volume: wp.array(dtype=float), reach: Reach):
     # Eq. 16: G_i = sum_p grad w_ip m_p, and beside it the occupied volume
     # sum_p w_ip V_p J_p (both levels: every particle belongs to the parent-level field).
     # A domain wall bounds the material, it is not a free surface: a particle near a
@@ -133,20 +138,36 @@ def scatter_surface_mass(s: ParticleArrays, materials: wp.array(dtype=MaterialPa
     # went on, the mass gradient normal to the wall vanishes there and the smoothed
     # surface meets the wall at right angles. Without the images every family along
     # the walls and the floor of a tank at rest was moved by up to 0.8 of a spacing.
-    p = wp.tid()
+    # On the CPU each thread's part scatters into its own sums (``reach``: where),
+    # which ``add_surface_sums`` adds in part order (sim/parallel.py).
+    p = wp.tid() + first
     xp = s.x[p]
     X = (xp - g.origin) * g.inv_dx
-    ci = wp.clamp(int(X[0]), 0, f.near.shape[0] - 1)
-    cj = wp.clamp(int(X[1]), 0, f.near.shape[1] - 1)
-    ck = wp.clamp(int(X[2]), 0, f.near.shape[2] - 1)
-    if f.near[ci, cj, ck] == 0:
+    ci = wp.clamp(int(X[0]), 0, near.shape[0] - 1)
+    cj = wp.clamp(int(X[1]), 0, near.shape[1] - 1)
+    ck = wp.clamp(int(X[2]), 0, near.shape[2] - 1)
+    if near[ci, cj, ck] == 0:
         return
     m = s.mass[p]
     vol = s.volume[p] * volume_ratio(materials[s.material[p]], s.F[p], s.history[p])
+    lo = int(EMPTY_BOUND)
+    hi = int(-1)
     for image in range(8):
         xi, flip = mirrored(g, xp, image, WALL_REACH * g.dx)
         if flip[0] * flip[1] * flip[2] != 0.0:
-            scatter_image(g, f, xi, m, vol, flip)
+            a, b = scatter_image(g, grad, volume, xi, m, vol, flip)
+            lo = wp.min(lo, a)
+            hi = wp.max(hi, b)
+    if reach.track != 0 and hi >= 0:
+        wp.atomic_min(reach.span, 0, lo)
+        wp.atomic_max(reach.span, 1, hi)
+
+
+@wp.kernel
+def add_surface_sums(first: int, count: int, chunk: int, sums: ThreadSums, f: SurfaceField):
+    # the other CPU threads' parts of Eq. 16 into the field, before it is smoothed
+    n0 = (wp.tid() + first) * chunk
+    add_thread_sums(sums, n0, wp.min(n0 + chunk, count), f.grad, f.volume)
 
 
 SIDE = wp.constant(0.125)  # filter weights per axis: (SIDE, 1 - 2 SIDE, SIDE)

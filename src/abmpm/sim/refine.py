@@ -21,10 +21,12 @@ from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
-from .parallel import Launcher
+from .grid_update import CPU_NODE_CHUNK
+from .parallel import Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
     SurfaceField,
+    add_surface_sums,
     family_shifts,
     keep_volume,
     scatter_surface_mass,
@@ -223,8 +225,15 @@ class Refiner:
             t0 = time.perf_counter()
             self.surface.grad.zero_()
             self.surface.volume.zero_()
-            wp.launch(scatter_surface_mass, dim=n, inputs=[state.arrays(), materials, self.coarse.spec, self.surface],
-                      device=self.device)
+            f, spec = self.surface, self.coarse.spec
+            private = self.launcher.private_grids("surface", f.grad, f.volume)
+            self.launcher.launch(scatter_surface_mass, n, lambda part, first, count: [
+                state.arrays(), materials, spec, f.near, *private.parts[part], private.reach[part]])
+            if private.extra > 0:
+                chunk = CPU_NODE_CHUNK
+                self.launcher.launch(add_surface_sums, -(-self.coarse.node_count // chunk),
+                                     [self.coarse.node_count, chunk, private.sums, f], min_range=64)
+                self.launcher.launch(reset_reach, private.extra + 1, [private.bounds])
             self.launcher.launch(smooth_surface_volume, self.coarse.node_count, [self.coarse.spec, self.surface])
             self._points.build(state.x[:n], self.coarse.dx)
             if self._shift.shape[0] < n:
