@@ -327,7 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("--modes", nargs="+", metavar="MODE",
                        help="original, adaptive and/or finest (default: all three)")
         c.add_argument("--quick", action="store_true",
-                       help="coarser, shorter versions of the paper scenes (~30 min for all on 2 CPU cores)")
+                       help="coarser, shorter versions of the paper scenes (~7 min for all on 2 CPU cores)")
         c.add_argument("--frames", "-n", type=_frames_arg, metavar="N", help="frames per run (default: duration * fps)")
         c.add_argument("--set", "-s", dest="set", action="append", default=[], metavar="KEY=VALUE",
                        help="change a scene setting in every run, e.g. simulation.refinement.merge=true (repeatable)")
