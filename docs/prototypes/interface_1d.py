@@ -39,8 +39,9 @@ def weights(x, dx):
 
 
 class Bar:
-    def __init__(self, scheme: str, band: float = 2.0, shares: tuple[float, float] = (0.5, 0.5)):
-        self.scheme, self.band, self.shares = scheme, band, shares
+    def __init__(self, scheme: str, band: float = 2.0, shares: tuple[float, float] = (0.5, 0.5),
+                 affine_kick: bool = False):
+        self.scheme, self.band, self.shares, self.affine_kick = scheme, band, shares, affine_kick
         xs, ms, lv = [], [], []
         for lo, hi, fine in ((L0, LI, scheme == "finest"), (LI, L1, scheme != "original")):
             h = (DX / 2 if fine else DX) / 2  # two particles per cell
@@ -97,9 +98,10 @@ class Bar:
         return mv, m
 
     def gather_masked(self, dx, vgrid, node_ok):
-        base, w, _ = weights(self.x, dx)
+        base, w, off = weights(self.x, dx)
         idx = base[:, None] + np.arange(3)
-        return (w * vgrid[idx] * node_ok[idx]).sum(1)
+        wm = w * node_ok[idx]
+        return (wm * vgrid[idx]).sum(1), (wm * vgrid[idx] * off).sum(1) * 4.0 / dx**2
 
     def gather(self, dx, vgrid):
         base, w, off = weights(self.x, dx)
@@ -130,9 +132,16 @@ class Bar:
                 own_c, ghost_c = change(vc, p0c, m0c), change(vc, p1c, m1c)
                 own_f, ghost_f = change(vf, p1f, m1f), change(vf, p0f, m0f)
                 x0, x1 = self.shares
-                k0 = -(1 - x0) * self.gather(DX, own_c)[0] + x1 * self.gather(DX / 2, ghost_f)[0] * (self.x >= lo_active)
-                k1 = -(1 - x1) * self.gather(DX / 2, own_f)[0] + x0 * self.gather_masked(DX, ghost_c, reached)
-                v0, v1 = v0 + k0, v1 + k1
+                active = (self.x >= lo_active).astype(float)
+                ko_v, ko_C = self.gather(DX, own_c)
+                kg_v, kg_C = self.gather(DX / 2, ghost_f)
+                k0v, k0C = -(1 - x0) * ko_v + x1 * kg_v * active, -(1 - x0) * ko_C + x1 * kg_C * active
+                ko_v, ko_C = self.gather(DX / 2, own_f)
+                kg_v, kg_C = self.gather_masked(DX, ghost_c, reached)
+                k1v, k1C = -(1 - x1) * ko_v + x0 * kg_v, -(1 - x1) * ko_C + x0 * kg_C
+                v0, v1 = v0 + k0v, v1 + k1v
+                if self.affine_kick:  # the kick's APIC part too (C carries no linear momentum)
+                    C0, C1 = C0 + k0C, C1 + k1C
             self.v = np.where(own0, v0, v1)
             self.C = np.where(own0, C0, C1)
         else:
@@ -170,7 +179,10 @@ def run(scheme: str, **kw) -> dict:
 
 if __name__ == "__main__":
     for scheme, kw in (("finest", {}), ("original", {}), ("ghosts", {}), ("kick", {"shares": (0.5, 0.5)}),
-                       ("kick", {"shares": (1.0, 0.0)}), ("kick", {"shares": (0.0, 1.0)}), ("blend", {"band": 2.0}),
+                       ("kick", {"shares": (1.0, 0.0)}), ("kick", {"shares": (0.0, 1.0)}),
+                       ("kick", {"shares": (0.5, 0.5), "affine_kick": True}),
+                       ("kick", {"shares": (1.0, 0.0), "affine_kick": True}),
+                       ("kick", {"shares": (0.0, 1.0), "affine_kick": True}), ("blend", {"band": 2.0}),
                        ("blend", {"band": 8.0})):
         r = run(scheme, **kw)
         label = scheme + "".join(f" ({k} {v})" for k, v in kw.items())
