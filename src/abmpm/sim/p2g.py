@@ -45,7 +45,7 @@ from .grid import (
     stencil_slots,
 )
 from .materials import ALL_MODELS, MaterialParams, dispatch
-from .parallel import EMPTY_BOUND, Reach
+from .parallel import EMPTY_BOUND, Reach, widen_reach
 from .state import ParticleArrays
 from .stencil import Stencil, dense_node_at, dense_stencil, offset_at, sparse_node_at, stencil_touches_active, weight_at
 from .variant import variant
@@ -101,8 +101,7 @@ def record_reach(g: GridSpec, st: Stencil, reach: Reach):
             if st.slots[q] >= 0:
                 lo = wp.min(lo, st.slots[q] * BLOCK_NODES)
                 hi = wp.max(hi, st.slots[q] * BLOCK_NODES + BLOCK_NODES - 1)
-    wp.atomic_min(reach.span, 0, lo)
-    wp.atomic_max(reach.span, 1, hi)
+    widen_reach(reach, lo, hi)
 
 
 @wp.func
@@ -266,9 +265,7 @@ def _make_scatter_footprint(cpic: bool):
                             scatter(grid_mv, grid_m, n, weight, mv, affine, dpos, s.mass[p])
                             lo = wp.min(lo, n)
                             hi = wp.max(hi, n)
-        if reach.track != 0 and hi >= 0:
-            wp.atomic_min(reach.span, 0, lo)
-            wp.atomic_max(reach.span, 1, hi)
+        widen_reach(reach, lo, hi)
 
     return scatter_footprint
 

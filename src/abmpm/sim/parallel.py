@@ -79,6 +79,15 @@ class Reach:
     span: wp.array(dtype=wp.int32)  # [lo, hi], empty when lo > hi
 
 
+@wp.func
+def widen_reach(reach: Reach, lo: int, hi: int):
+    """Widen a tracking part's ``span`` to take in storage indices [lo, hi] (nothing
+    when hi < 0: nothing reached)."""
+    if reach.track != 0 and hi >= 0:
+        wp.atomic_min(reach.span, 0, lo)
+        wp.atomic_max(reach.span, 1, hi)
+
+
 @wp.struct
 class ThreadSums:
     """The extra parts' P2G sums of one grid, as the grid update sees them: it adds

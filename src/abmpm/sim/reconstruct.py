@@ -46,8 +46,8 @@ from __future__ import annotations
 import warp as wp
 
 from .grid import GridSpec, nearest_node_coords, node_coords, node_index
-from .parallel import EMPTY_BOUND, Reach, ThreadSums, add_thread_sums
 from .materials import MaterialParams, volume_ratio
+from .parallel import EMPTY_BOUND, Reach, ThreadSums, add_thread_sums, widen_reach
 from .state import ParticleArrays
 from .stencil import bspline_weights, stencil_base, stencil_offset
 
@@ -158,9 +158,7 @@ def scatter_surface_mass(first: int, s: ParticleArrays, materials: wp.array(dtyp
             a, b = scatter_image(g, grad, volume, xi, m, vol, flip)
             lo = wp.min(lo, a)
             hi = wp.max(hi, b)
-    if reach.track != 0 and hi >= 0:
-        wp.atomic_min(reach.span, 0, lo)
-        wp.atomic_max(reach.span, 1, hi)
+    widen_reach(reach, lo, hi)
 
 
 @wp.kernel
