@@ -37,6 +37,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         base_level=1 if mode == "finest" else 0,
         reconstruct=st.refinement.reconstruct,
         surface_threshold=st.refinement.surface_threshold,
+        time_steps=st.refinement.time_steps,
         cuda_graph=st.cuda_graph,
     )
 

@@ -107,10 +107,12 @@ class Simulation:
         self._t_frame = 0.0  # time since the frame started
         self._taken = 0  # substeps taken in this frame
         self.history: list[dict] = []
+        self._slow_signal = (0.0, 1.0)  # the slow set's last CFL signal (a time step per level)
+        self._signal_all = True  # the last substep's signal came from every particle
         # a step shorter than this fraction of the step at rest means the run has blown up
         self._min_dt = MIN_DT_FRACTION * self.cfl_dt(0.0)
-        self._choose_dt((float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()), 1.0))
         self.solver.sort_by_cell(self._state)
+        self._choose_dt((float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()), 1.0))
         self.solver.color_particles(self._state)
         self._last_good = self._state.numpy()
         self._last_good_signal = self._signal
@@ -142,6 +144,21 @@ class Simulation:
         # the rest of the frame in equal substeps no longer than dt_max
         self._left = max(1, math.ceil(rest / dt_max - 1e-9))
         self.dt = rest / self._left
+        solver = self.solver
+        if solver.slow is None:
+            return
+        # A time step per level (sim/time_levels.py): the slow set steps DT, its own
+        # coarse CFL step, in k substeps of the fast set (k <= the refinement period),
+        # when that costs fewer particle-steps than every particle at the fine step.
+        if self._signal_all:  # the slow set stepped with everyone: its speed is in the last signal
+            self._slow_signal = self._signal
+        big = min(self._slow_dt(), SEGMENT_MAX * dt_max)
+        n_big = max(1, math.ceil(rest / big - 1e-9))
+        k = max(1, math.ceil(rest / n_big / dt_max - 1e-9))
+        n_slow, n = solver.slow_count, self._state.count
+        solver.block = 1
+        if k > 1 and n_big * (k * (n - n_slow) + n_slow) < self._left * n:
+            solver.block, self._left, self.dt = k, n_big * k, rest / (n_big * k)
 
     def _checked_dt(self, signal: tuple[float, float]) -> float:
         """The CFL step for the last substep's signal (fastest particle, fluid
@@ -200,12 +217,33 @@ class Simulation:
         speeds keeps equal substeps."""
         self._run_segment(1)
 
+    def _slow_dt(self) -> float:
+        # the slow set's CFL step: the coarse spacing, its own fastest particle and stiffening
+        st = self.scene.simulation
+        max_speed, stiffening = self._slow_signal
+        c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
+        return cfl_time_step(st.cfl, st.max_dt, self.dx, c + max_speed)
+
+    def _close_slow(self, recut: bool = False) -> None:
+        # the slow set's step ends (sim/time_levels.py); its speed is checked like the
+        # others'; with ``recut``, a slow set now too fast for its step re-cuts the frame
+        signal = self.solver.close_slow(self._state)
+        if signal is None:
+            return
+        self._slow_signal = signal
+        self._checked_dt(signal)
+        if recut and self.dt * self.solver.block > self._slow_dt() * (1.0 + 1e-6):
+            self._split_rest(self.frame_dt - self._t_frame, self.cfl_dt(*self._signal))
+            self.substeps = self._taken + self._left
+
     def _run_segment(self, limit: int, done=None) -> None:
         """Up to ``limit`` substeps as one segment of the solver (no host work between
         them), then each substep's bookkeeping in turn, as ``step`` does it. Should a
         substep end the segment early (the rest of the frame re-cut, a blow-up, or
         ``done()``), the solver rewinds to just after it: any ``limit`` gives the
         results of one substep at a time."""
+        if self.solver.slow_due:
+            self._close_slow(recut=True)
         n = min(limit, self._left, self.solver.segment_length)
         self.solver.begin_segment(self._state, self.time, self.dt, n)
         self.solver.run_segment(self._state)
@@ -229,13 +267,16 @@ class Simulation:
         self._left -= 1
         self._t_frame += self.dt
         self._signal = signal
+        self._signal_all = self.solver.block < 2 or self.solver.slow_count == 0
         dt_max = self._checked_dt(signal)
         if self._left == 0:
             self._t_frame = 0.0
             self._taken = 0
+            self._close_slow()
             with self.solver.section("frame end"):  # a phase of a profile (abmpm bench --profile)
                 self._end_frame()
         elif self.dt > dt_max * (1.0 + 1e-6):
+            self._close_slow()
             self._split_rest(self.frame_dt - self._t_frame, dt_max)
             self.substeps = self._taken + self._left
             return True
@@ -279,6 +320,8 @@ class Simulation:
             self._merge(snap)
         if self.frame % SORT_EVERY_FRAMES == 0:
             self.solver.sort_by_cell(self._state)
+        if self.solver.slow is not None:  # the slow set's share follows the sort
+            self._choose_dt(self._signal)
 
     def _merge(self, snap: dict[str, np.ndarray]) -> None:
         """Merge families that left the region (by the margin) back into level-0 particles."""
@@ -346,6 +389,7 @@ class Simulation:
     def set_particles(self, **arrays: np.ndarray) -> None:
         """Overwrite per-particle fields (e.g. ``v=...``), given in particle-id order
         (the order of ``particles().by_id()``)."""
+        self._close_slow()
         current = self._state.numpy()
         slot = np.argsort(current["id"], kind="stable")  # slot[id] = index in the state
         for k, a in arrays.items():
@@ -372,6 +416,7 @@ class Simulation:
             "substeps": self.substeps,
             # fastest particle and fluid stiffening at that frame: they set the next time step
             "cfl_signal": list(self._last_good_signal if last_good else self._signal),
+            "slow_signal": list(self._slow_signal),
             "history": [h for h in self.history if h["frame"] <= frame],
             "scene": self.scene.name,
             "mode": self.mode,
@@ -399,4 +444,8 @@ class Simulation:
         self.solver.reserve_ids(int(meta.get("next_id", self.solver.next_id)))
         self.solver.reset_step_count(self.steps)
         self.solver.adopt(self._state)
+        if self.solver.slow is not None:
+            self._slow_signal = tuple(float(a) for a in meta.get("slow_signal", self._signal))
+            self._signal_all = False
+            self._choose_dt(self._signal)
         self._last_good = self._state.numpy()

@@ -88,6 +88,10 @@ class Refinement(_Strict):
         default_factory=list, description="extra boxes to refine, [min, max]"
     )
     merge: bool = Field(True, description="merge split families back once they have left the region")
+    time_steps: Literal["global", "per_level"] = Field(
+        "global", description="per_level: level-0 particles far from the fine level take the coarse time step; "
+        "global: every particle takes the finest step"
+    )
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
     reconstruct: bool = Field(
         True, description="surface particle reconstruction after a split (paper Section 4.3); false: plain split"

@@ -12,6 +12,7 @@ import warp as wp
 
 from .boundary import BOUNDARY_IDS
 from .colliders import (
+    color_particles,
     FAR,
     NODE_BAND,
     NODE_RANGE,
@@ -158,6 +159,24 @@ class ColliderSet:
         hi = np.ceil((v.max(axis=0) - o) / grid.dx + pad).astype(int) + 1
         dims = np.array(grid.dims)
         return np.clip(lo, 0, dims), np.clip(hi, 0, dims)
+
+    def move(self, t: float, grids: list[Grid], launcher) -> bool:
+        """To time ``t`` with every grid's color field, unless static and placed
+        already; whether anything was done."""
+        if self.static and self.time is not None:
+            return False
+        self.set_time(t)
+        for g in grids:
+            self.color(g, launcher)
+        return True
+
+    def color_particles(self, state, grids: list[Grid], launcher, min_id: int = -1) -> None:
+        """CPIC color of every particle (of those with an id from ``min_id`` on) from
+        its own grid; later steps update it in G2P."""
+        for g in grids:
+            launcher.launch(color_particles, state.count,
+                            [state.x, state.level, state.id, min_id, self.arrays, g.spec, g.color,
+                             state.surface_point, state.surface_side, state.surface_body])
 
     def color(self, grid: Grid, launcher, first_slot: int = 0) -> None:
         """(Re)build the color distance field of a grid around the colliders: on a

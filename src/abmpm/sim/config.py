@@ -29,6 +29,9 @@ class SolverConfig:
     """Its t_p (Eq. 16), in units of (mass of a full coarse cell) / dx."""
     threads: int | None = None
     """CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored."""
+    time_steps: str = "global"
+    """Adaptive mode: "per_level" lets the level-0 particles far from the fine level take
+    the coarse step (sim/time_levels.py); "global": every particle takes the finest step."""
     cuda_graph: bool = False
     """Run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
     a warning on the CPU, where a replayed graph would run on one thread)."""

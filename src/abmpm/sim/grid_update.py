@@ -14,6 +14,7 @@ from .boundary import boundary_response
 from .colliders import CONTACT_BAND, ColliderArrays, ColorField, node_contact
 from .grid import HOLDS_LEVEL1, GridSpec, node_coords, node_position
 from .parallel import ThreadSums, add_thread_sums
+from .time_levels import SlowNodes, add_slow, keep_slow_share
 
 wp.set_module_options({"enable_backward": False})
 
@@ -54,6 +55,7 @@ def grid_update(
     count: int,  # nodes
     chunk: int,  # nodes per kernel thread
     sums: ThreadSums,  # the other CPU threads' P2G sums
+    slow: SlowNodes,  # the slow set's share of the coarse nodes (sim/time_levels.py), if a block is open
 ):
     # Warp's CPU backend spends a few ns per kernel thread, as much as a node's
     # update: a chunk of nodes per thread there, one on a GPU
@@ -61,11 +63,11 @@ def grid_update(
     n1 = wp.min(n0 + chunk, count)
     add_thread_sums(sums, n0, n1, grid_mv, grid_m)
     for n in range(n0, n1):
-        m = grid_m[n]
+        m, mv = add_slow(slow, n, dt_now[0], grid_m[n], grid_mv[n])
         vi = wp.vec3(0.0)
         if m > 0.0:
             # v_i = m_i v_i / m_i + dt g (Eqs. 3-4), then collider contact (Eq. 22)
-            vi = grid_mv[n] / m + dt_now[0] * g.gravity
+            vi = mv / m + dt_now[0] * g.gravity
             xi = node_position(g, node_coords(g, n))
             if colliders.enabled != 0:
                 band = CONTACT_BAND * g.dx
@@ -75,6 +77,7 @@ def grid_update(
                 vi = node_contact(colliders, color, vi, xi, n, band)
             # the domain walls have the last word: a collider never pushes material through them
             vi = domain_walls(g, xi, vi)
+            keep_slow_share(slow, n, vi)
         grid_v[n] = vi
         grid_mv[n] = wp.vec3(0.0)
         grid_m[n] = 0.0

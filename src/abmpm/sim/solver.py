@@ -25,7 +25,6 @@ CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
 
 ``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a
 captured graph), ``end_segment()`` reads the per-substep signals back at once.
-``step(state, dt, time)`` is a segment of one substep.
 
 Everything else (sampling, output, diagnostics, time stepping) lives outside.
 """
@@ -33,7 +32,6 @@ Everything else (sampling, output, diagnostics, time stepping) lives outside.
 from __future__ import annotations
 
 import warnings
-from typing import Any
 
 import numpy as np
 import warp as wp
@@ -41,27 +39,27 @@ import warp as wp
 from . import collider_set as collider_host
 from . import colliders as collider_kernels
 from . import grid_update as node_pass_kernels
-from . import parallel, reconstruct, refine, sorting
+from . import parallel, reconstruct, refine, sorting, time_levels
 from .boundary import FACES
 from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_field
-from .colliders import color_particles
 from .config import SolverConfig
 from .g2p import g2p_kernel
 from .grid import Grid
 from .grid_update import CPU_NODE_CHUNK, grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import p2g_kernel
-from .parallel import CACHE_LINE_WORDS, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
+from .parallel import MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
+from .segments import Graphs, SegmentStart, Signals, buffer_key
 from .sorting import level_ranges, sort_by_cell
-from .state import DYNAMIC, FIELDS, ParticleState
+from .state import FIELDS, ParticleState
+from .time_levels import GUARD_HALO, SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
 wp.set_module_options({"enable_backward": False})
 
 # The longest segment (substeps between two host points): segments end at every
 # refinement step, in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
-SIGNAL_STRIDE = CACHE_LINE_WORDS  # floats between two CFL signal slots
 
 # the P2G passes (sim/p2g.py): which particles each visits (a level, or None for
 # all) and how a profile names it
@@ -105,16 +103,9 @@ class MPMSolver:
         self._occ = self._no_occ  # coarse nodes reached by level-0 particles (adaptive mode)
         self._cmask = self._no_occ  # per-particle compatibility mask, P2G -> G2P (CPIC)
         self._dt = wp.zeros(1, dtype=float, device=device)  # the segment's dt, read by the kernels
-        # [max speed, max sound-speed stiffening] per substep of a segment and CPU thread,
-        # written by G2P (atomic max, every particle) into its own slot; one view per
-        # slot, made here. Slots are a cache line apart: two CPU threads updating the
-        # same line on every particle cost G2P a tenth of its two-thread speed.
-        threads = self.launcher.threads
-        at_rest = np.tile([0.0, 1.0] + [0.0] * (SIGNAL_STRIDE - 2), SEGMENT_MAX * threads)
-        self.signal = wp.array(at_rest, dtype=float, device=device)
-        self._signal_at_rest = wp.array(at_rest, dtype=float, device=device)
-        self._signal_slots = [[self.signal[SIGNAL_STRIDE * i: SIGNAL_STRIDE * i + 2]
-                               for i in range(k * threads, (k + 1) * threads)] for k in range(SEGMENT_MAX)]
+        self._dt_host = 0.0
+        self._signals = Signals(SEGMENT_MAX, self.launcher.threads, device)  # the CFL signal of each substep
+        self.signal = self._signals.array
         # Where each level's particles lie: level (None: every level) -> ranges
         # (first, count). After a sort by (level, cell) each level of adaptive mode
         # is one contiguous range and its transfers run over it alone: equal work per
@@ -126,17 +117,21 @@ class MPMSolver:
         self._segment = 0  # substeps in the current segment
         self._substep = 0  # of which taken
         self._segment_start = 0  # step count at its start
-        self._kept: dict[str, wp.array] = {}  # dynamic particle fields at the segment start (rewind)
-        # Captured graphs (run_segment). Moving colliders run eagerly: their pose comes
-        # from the host before every substep. ``capture`` may be set on the CPU too:
-        # Warp (>= 1.19) replays CPU graphs, on one thread; the tests use that to check
-        # the captured path without a GPU.
+        self._start = SegmentStart(device)  # the particles at the segment's start (rewind)
+        # Captured graphs (run_segment; moving colliders run eagerly). ``capture`` may be set on
+        # the CPU too (Warp >= 1.19 replays CPU graphs, on one thread): the tests do.
         if config.cuda_graph and not self.launcher.device.is_cuda:
             warnings.warn("cuda_graph is ignored on the CPU: substeps run eagerly on all threads", stacklevel=2)
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
+        # A time step per level (sim/time_levels.py): the slow set, in adaptive mode
+        # without moving colliders; ``block`` substeps of the fast set make one of its steps.
+        per_level = config.time_steps == "per_level" and (colliders is None or colliders.static)
+        self.slow = SlowSet(self.grid, self.launcher, device) if self.refiner and per_level else None
+        self._no_slow = no_slow(device)
+        self.slow_count = 0  # particles of the slow set, at the front of the storage (counted at each sort)
+        self.block = 1  # substeps per step of the slow set (set by the time stepping)
         self._kernels_loaded = False
-        self._graphs: dict[tuple, Any] = {}  # (first slot, substeps) -> graph, for _graph_buffers
-        self._graph_buffers: tuple | None = None
+        self._graphs = Graphs()  # captured segments (run_segment)
 
     def transfer_kernels(self) -> list:
         """Every transfer kernel this solver's substeps may launch. Each is compiled
@@ -146,6 +141,7 @@ class MPMSolver:
         kernels = [reset_reach, grid_update]
         kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
         kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
+        kernels += [p2g_slow_kernel(self.models)] if self.slow is not None else []
         return kernels
 
     def p2g_passes(self) -> list[tuple[str, Grid]]:
@@ -162,7 +158,7 @@ class MPMSolver:
         so that compiling is not counted as simulation time."""
         if self._kernels_loaded:
             return
-        modules = [node_pass_kernels, parallel, sorting]
+        modules = [node_pass_kernels, parallel, sorting] + ([time_levels] if self.slow is not None else [])
         if self.colliders is not None:
             modules += [collider_kernels, collider_host]
         if self.refiner is not None:
@@ -244,13 +240,24 @@ class MPMSolver:
         are set on the host before every substep)."""
         if self.colliders is not None and not self.colliders.static:
             return 1
-        return SEGMENT_MAX - self._steps % SEGMENT_MAX
+        n = SEGMENT_MAX - self._steps % SEGMENT_MAX
+        cap = self.slow.segment_cap(self.block, self.slow_due) if self.slow is not None else None
+        return n if cap is None else min(n, cap)  # a segment ends with the slow set's step
 
-    def step(self, state: ParticleState, dt: float, time: float = 0.0) -> None:
-        """Advance ``state`` in place from ``time`` by ``dt``: a segment of one substep
-        (its CFL signal is ``end_segment()[0]``)."""
-        self.begin_segment(state, time, dt, 1)
-        self.run_segment(state)
+    @property
+    def slow_due(self) -> bool:
+        """Whether the slow set's open step must end (``close_slow``) before the next segment."""
+        return self.slow is not None and self.slow.due(self.block, self._steps % REFINE_EVERY == 0)
+
+    def close_slow(self, state: ParticleState) -> tuple[float, float] | None:
+        """End the slow set's step (a host point): it gathers from the coarse grid with
+        the step's whole length (Eqs. 11-14). Returns its CFL signal (fastest speed,
+        stiffening), or None if no step was open."""
+        if self.slow is None or not self.slow.open:
+            return None
+        g = self.grid
+        common = [self.materials, g.spec, self.collider_arrays, g.color], [g.v, state.arrays(), self._cmask]
+        return self.slow.gather(state, self._ranges["slow"][0], g2p_kernel(False, self.cpic, self.models), common)
 
     def begin_segment(self, state: ParticleState, time: float, dt: float, substeps: int = 1) -> None:
         """Host point before ``substeps`` (at most ``segment_length``) substeps of
@@ -258,6 +265,8 @@ class MPMSolver:
         from the host happens here, never in a substep."""
         if not 1 <= substeps <= self.segment_length:
             raise ValueError(f"a segment has 1 to {self.segment_length} substeps now, not {substeps}")
+        if self.slow_due:
+            raise RuntimeError("the slow set's step is due: call close_slow first")
         with self.launcher.section("colliders"):
             self.move_colliders(time)  # 1. colliders to t, color field
         if self.refiner is not None and self._steps % REFINE_EVERY == 0:
@@ -265,14 +274,19 @@ class MPMSolver:
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
         self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
+        if self.slow is not None and not self.slow.open and self.block > 1 and self._ranges["slow"][0][1]:
+            with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
+                if self.slow.drift > (SORT_HALO - GUARD_HALO) * self.grid.dx:  # S may have come near: chosen again
+                    self.sort_by_cell(state)
+                    self._find_level_ranges(state)
+                self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models)
         self._dt.fill_(dt)
-        wp.copy(self.signal, self._signal_at_rest)
+        self._dt_host = dt
+        self._signals.reset()
         if substeps > 1:  # a longer segment can be stopped early: see rewind()
-            for name in DYNAMIC:
-                src = getattr(state, name)
-                if self._kept.get(name) is None or self._kept[name].shape[0] < state.capacity:
-                    self._kept[name] = wp.empty(state.capacity, dtype=src.dtype, device=self.device)
-                wp.copy(self._kept[name], src, count=state.count)
+            self._start.keep(state)
+        if self.slow is not None:
+            self.slow.ran(substeps, dt, keep=substeps > 1)
         self._segment, self._substep, self._segment_start = substeps, 0, self._steps
 
     def substep(self, state: ParticleState) -> None:
@@ -284,7 +298,7 @@ class MPMSolver:
             raise RuntimeError("the segment is complete: call begin_segment first")
         self.p2g(state)  # 4. P2G (Eqs. 8-10)
         self.grid_update()  # 5. grid update (Eqs. 3-4, 22)
-        self.g2p(state, self._signal_slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
+        self.g2p(state, self._signals.slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
         self._substep += 1
         self._steps += 1
 
@@ -297,14 +311,10 @@ class MPMSolver:
             for _ in range(n):
                 self.substep(state)
             return
-        buffers = self._graph_buffer_key(state)
-        if buffers != self._graph_buffers:  # anything moved: the old graphs point at freed memory
-            self._graphs.clear()
-            self._graph_buffers = buffers
         key = (self._substep, n)
-        graph = self._graphs.get(key)
+        graph = self._graphs.find(self._graph_buffer_key(state), key)
         if graph is None:
-            graph = self._graphs[key] = self._capture(state, n)  # records, does not run
+            graph = self._capture(state, key)  # records, does not run
         else:
             self._substep += n
             self._steps += n
@@ -315,8 +325,10 @@ class MPMSolver:
         particle's speed (m/s; 1e30 if a velocity was not finite) and the largest
         factor by which compression raised a fluid's sound speed, shape (substeps, 2).
         One small read from the device per segment: the CFL time step follows them."""
-        a = self.signal.numpy().reshape(SEGMENT_MAX, self.launcher.threads, SIGNAL_STRIDE)[: self._substep, :, :2]
-        return a.max(axis=1).astype(np.float64)
+        a = self._signals.read(self._substep)
+        if self.slow is not None:  # the fast particles moved this far at most
+            self.slow.drift += self._dt_host * float(a[:, 0].sum())
+        return a
 
     def rewind(self, state: ParticleState, substeps: int) -> None:
         """Stop the segment after its first ``substeps`` substeps: the particles go back
@@ -324,9 +336,10 @@ class MPMSolver:
         result is bit-identical). For a segment of more than one substep."""
         if not 1 <= substeps <= self._segment or self._segment < 2:
             raise ValueError(f"cannot rewind a segment of {self._segment} substeps to {substeps}")
-        for name in DYNAMIC:
-            wp.copy(getattr(state, name), self._kept[name], count=state.count)
-        wp.copy(self.signal, self._signal_at_rest)
+        self._start.restore(state)
+        if self.slow is not None:
+            self.slow.unrun(self._segment - substeps, self._dt_host)
+        self._signals.reset()
         self._segment, self._substep, self._steps = substeps, 0, self._segment_start
         for _ in range(substeps):
             self.substep(state)
@@ -345,36 +358,33 @@ class MPMSolver:
         self._find_level_ranges(state)
 
     def _find_level_ranges(self, state: ParticleState) -> None:
-        # adaptive mode: where each level's particles lie (one range per level once
-        # sorted by level; else every range over all particles)
-        self._ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
+        # where each level's particles lie (one range per level once sorted; else every range over all)
+        ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
+        self._ranges = split_off_slow(ranges, self.slow_count if self.block > 1 else 0)
 
     def _graph_buffer_key(self, state: ParticleState) -> tuple:
         # what a captured substep has baked in: launch sizes and every buffer's address
         arrays = [getattr(state, name) for name in FIELDS]
+        if self.slow is not None:
+            arrays += [self.slow.nodes.m, self.slow.nodes.p, self.slow.nodes.f]
         arrays += [self._tau, self._cmask, self._occ, self._dt, self.signal, self.materials,
                    self.collider_arrays.bodies, self.collider_arrays.face_body]
         for g in self.grids:
             arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
         arrays += self.launcher.private_arrays()
-        return (state.count, tuple(map(tuple, self._ranges.values())), tuple(g.node_count for g in self.grids),
-                int(self.collider_arrays.mesh),
-                tuple((a.ptr, a.shape) for a in arrays))
+        return buffer_key(state.count, arrays, self.slow is not None and self.slow.open,
+                          tuple(map(tuple, self._ranges.values())), tuple(g.node_count for g in self.grids),
+                          int(self.collider_arrays.mesh))
 
-    def _capture(self, state: ParticleState, n: int):
+    def _capture(self, state: ParticleState, key: tuple):
         first, steps = self._substep, self._steps
         self.load_kernels()  # loaded before, not during, the capture
-        self.launcher.serial = True  # one thread records the launches in order
         try:
-            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-                for _ in range(n):
-                    self.substep(state)
+            return self._graphs.capture(key, self.device, self.launcher,
+                                        lambda: [self.substep(state) for _ in range(key[1])])
         except BaseException:
             self._substep, self._steps = first, steps
             raise
-        finally:
-            self.launcher.serial = False
-        return capture.graph
 
     # ------------------------------------------------------------------ the passes
 
@@ -399,10 +409,11 @@ class MPMSolver:
         for g in self.grids:
             private = self.launcher.private_grids(g.level, g.mv, g.m)  # the other CPU threads' sums
             coarse_adaptive = self.refiner is not None and not g.sparse
+            slow = self.slow.nodes if coarse_adaptive and self.slow is not None else self._no_slow
             self.launcher.launch(grid_update, -(-g.node_count // chunk),
                                  [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
                                   self._occ if coarse_adaptive else self._no_occ, int(coarse_adaptive),
-                                  self.grids[-1].dx, g.node_count, chunk, private.sums],
+                                  self.grids[-1].dx, g.node_count, chunk, private.sums, slow],
                                  label=f"grid update {g.name}", min_range=64)
             if private.extra > 0:  # every part's reach empty again
                 self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
@@ -420,9 +431,14 @@ class MPMSolver:
     def adopt(self, state: ParticleState) -> None:
         """Make the grids ready for a state that was replaced wholesale (loaded from a
         checkpoint, edited, merged): fine blocks for its level-1 particles, colors."""
+        if self.slow is not None and self.slow.open:
+            raise RuntimeError("close the slow set's step before replacing the particles")
+        self.slow_count = 0  # every particle fast until the next sort
         if self.refiner is not None:
             self._after_activation(self.refiner.activate(state))
         self.color_particles(state)
+        if self.slow is not None:  # the slow set is chosen again (as the sort at a frame end does)
+            self.sort_by_cell(state)
 
     def reset_step_count(self, steps: int) -> None:
         """Steps taken so far (refinement runs every REFINE_EVERY steps), for resuming."""
@@ -432,23 +448,14 @@ class MPMSolver:
 
     def move_colliders(self, time: float) -> None:
         """Colliders to time t (Eq. 22 velocities), color fields rebuilt if they moved."""
-        c = self.colliders
-        if c is None or (c.static and c.time is not None):
-            return
-        c.set_time(time)
-        self.collider_arrays = c.arrays
-        for g in self.grids:
-            c.color(g, self.launcher)
+        if self.colliders is not None and self.colliders.move(time, self.grids, self.launcher):
+            self.collider_arrays = self.colliders.arrays
 
     def color_particles(self, state: ParticleState, min_id: int = -1) -> None:
         """CPIC color of every particle (of those with an id from ``min_id`` on) from
         its own grid; later steps update it in G2P."""
-        if self.colliders is None or not self.cpic:
-            return
-        for g in self.grids:
-            self.launcher.launch(color_particles, state.count,
-                                 [state.x, state.level, state.id, min_id, self.collider_arrays, g.spec, g.color,
-                                  state.surface_point, state.surface_side, state.surface_body])
+        if self.colliders is not None and self.cpic:
+            self.colliders.color_particles(state, self.grids, self.launcher, min_id)
 
     # ------------------------------------------------------------------ refinement
 
@@ -482,4 +489,12 @@ class MPMSolver:
     def sort_by_cell(self, state: ParticleState) -> None:
         """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
         device); in adaptive mode by level first, so that each level is one range."""
-        self._sorted = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher, self._sorted)
+        near = None
+        if self.slow is not None:
+            if self.slow.open:
+                raise RuntimeError("close the slow set's step before sorting")
+            near = self.slow.grow_near(state, self.refiner.region, self.grid.color, self.colliders is not None,
+                                       (0, state.count), SORT_HALO)
+            self.slow.drift = 0.0
+        self._sorted, self.slow_count = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
+                                                  self._sorted, near)

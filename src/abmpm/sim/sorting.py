@@ -15,6 +15,7 @@ from .grid import GridSpec
 from .parallel import Launcher
 from .state import DTYPES, FIELDS, ParticleArrays, ParticleState
 from .stencil import stencil_base
+from .time_levels import cell_of
 
 wp.set_module_options({"enable_backward": False})
 
@@ -22,16 +23,21 @@ Ranges = dict  # level (None: every level) -> [(first, count), ...]
 
 
 def sort_by_cell(state: ParticleState, coarse: GridSpec, by_level: bool, launcher: Launcher,
-                 scratch: ParticleState | None) -> ParticleState | None:
-    """Reorder ``state`` by coarse cell, by level first if ``by_level``; returns the
-    scratch copy used (reuse it next time)."""
+                 scratch: ParticleState | None, near: wp.array | None = None) -> tuple[ParticleState | None, int]:
+    """Reorder ``state`` by coarse cell, by level first if ``by_level``; with ``near``
+    (a flag per coarse cell) the level-0 particles outside it come first, the slow set
+    of a time step per level (sim/time_levels.py). Returns the scratch copy used (reuse
+    it next time) and how many particles are slow."""
     n = state.count
     if n == 0:
-        return scratch
+        return scratch, 0
     device = launcher.device
     keys = wp.empty(2 * n, dtype=wp.int32, device=device)
     perm = wp.empty(2 * n, dtype=wp.int32, device=device)
-    launcher.launch(_cell_keys, n, [state.x, state.level, int(by_level), coarse, keys, perm])
+    slow = wp.zeros(1, dtype=wp.int32, device=device)
+    classes = near if near is not None else slow
+    launcher.launch(_cell_keys, n, [state.x, state.level, int(by_level), coarse, classes, int(near is not None),
+                                    keys, perm, slow])
     wp.utils.radix_sort_pairs(keys, perm, n)
     if scratch is None or scratch.capacity < n:
         scratch = ParticleState(**{name: wp.empty(state.capacity, dtype=DTYPES[name], device=device)
@@ -39,7 +45,7 @@ def sort_by_cell(state: ParticleState, coarse: GridSpec, by_level: bool, launche
     launcher.launch(_permute, n, [state.arrays(), perm, scratch.arrays()])
     for name in FIELDS:
         wp.copy(getattr(state, name), getattr(scratch, name), count=n)
-    return scratch
+    return scratch, int(slow.numpy()[0]) if near is not None else 0
 
 
 def level_ranges(state: ParticleState, levels: list[int], two_levels: bool, scratch: wp.array) -> Ranges:
@@ -62,12 +68,19 @@ def level_ranges(state: ParticleState, levels: list[int], two_levels: bool, scra
 
 @wp.kernel
 def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
-               g: GridSpec, keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32)):
+               g: GridSpec, near: wp.array(dtype=wp.int32), slow_first: int, keys: wp.array(dtype=wp.int32),
+               perm: wp.array(dtype=wp.int32), slow: wp.array(dtype=wp.int32)):
     p = wp.tid() + first
     b = stencil_base(g, x[p])
     keys[p] = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
     if by_level != 0:
-        keys[p] = keys[p] + level[p] * g.dims[0] * g.dims[1] * g.dims[2]
+        group = level[p]
+        if slow_first != 0:  # slow (level 0 outside ``near``), level 0, level 1
+            group = group + 1
+            if level[p] == 0 and near[cell_of(g, x[p])] == 0:
+                group = 0
+                wp.atomic_add(slow, 0, 1)
+        keys[p] = keys[p] + group * g.dims[0] * g.dims[1] * g.dims[2]
     perm[p] = p
 
 

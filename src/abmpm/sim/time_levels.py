@@ -1,0 +1,330 @@
+"""A time step per level: the slow set (docs/method.md, "A time step per level").
+
+In adaptive mode with ``time_steps = "per_level"`` the level-0 particles far from
+everything fine (the refined region, the level-1 particles, the colliders' bands)
+form the slow set S. S takes one coarse step DT = k dt while every other particle
+(the fast set F) takes k substeps of dt, the fine CFL step. The temporal interface is
+between particles of the coarse grid, so the level interface is untouched.
+
+One coarse step of S, a block:
+
+* **open** (a host point): S scatters once onto the coarse grid, into arrays of its
+  own: mass m^S_i, APIC momentum p^S_i (Eq. 8) and internal force f^S_i (Eq. 10 per
+  unit time, the stress of the block's start);
+* **each substep** the grid update adds S to the node, m_i += m^S_i and
+  m_i v_i += p^S_i + dt f^S_i, and after the update S's share keeps the node's new
+  velocity, p^S_i = m^S_i v_i (S is material on the grid whose velocity evolves with
+  the node's, its positions and stress frozen for the block);
+* **close** (a host point): S gathers the last node velocities (Eqs. 11-12) and moves
+  with the block's whole length T (Eq. 7, advection), as original mode does with a
+  step T.
+
+Momentum is exact: in every substep the grid holds F's scattered momentum plus
+sum_i p^S_i, which is S's momentum after the last substep, and S's gather at the close
+takes exactly sum_i m^S_i v_i = sum_i p^S_i. Far from F a node's velocity after k
+substeps is u + T (f^S / m^S + g): original mode's update with step T.
+
+Who is slow is decided when the particles are sorted (they are sorted by class, so S is
+one range): a level-0 particle whose cell is farther than SORT_HALO cells from the
+*core* (region cells, cells holding level-1 particles, cells within a collider's node
+band). S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
+stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
+shares a node with a level-1 particle's overlap scatter or reaches a fine node a
+level-1 particle gathers from. The solver adds up how far the particles can have moved
+since that sort (each substep dt times the fastest fast particle, each step of S its
+length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO cells, the
+next open sorts (and chooses S) again. Splits and frame ends sort anyway.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from .colliders import ColorField
+from .grid import GridSpec, dense_node_index
+from .materials import ALL_MODELS, MaterialParams, dispatch
+from .p2g import record_reach
+from .parallel import MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, reset_reach
+from .segments import Signals
+from .state import ParticleArrays, ParticleState
+from .stencil import dense_node_at, dense_stencil, offset_at, weight_at
+from .variant import variant
+
+wp.set_module_options({"enable_backward": False})
+
+GUARD_HALO = 3  # coarse cells: no S particle this close to the core (checked at every open)
+SORT_HALO = 5  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
+
+
+@wp.struct
+class SlowNodes:
+    """The slow set on the coarse grid during a block (``on`` = 0: no block open)."""
+
+    m: wp.array(dtype=float)  # S's mass per node
+    p: wp.array(dtype=wp.vec3)  # S's node momentum: APIC at the open, m^S v after each substep
+    f: wp.array(dtype=wp.vec3)  # S's internal force (Eq. 10 per unit time), frozen for the block
+    on: int
+
+
+@wp.func
+def add_slow(slow: SlowNodes, n: int, dt: float, m: float, mv: wp.vec3):
+    """Node ``n``'s mass and momentum with S added (nothing when no block is open)."""
+    if slow.on == 0:
+        return m, mv
+    return m + slow.m[n], mv + slow.p[n] + dt * slow.f[n]
+
+
+@wp.func
+def keep_slow_share(slow: SlowNodes, n: int, vi: wp.vec3):
+    """After the node update: S's share of the node moves with the node's velocity."""
+    if slow.on != 0:
+        ms = slow.m[n]
+        if ms > 0.0:
+            slow.p[n] = ms * vi
+
+
+def _make_p2g_slow(models: tuple[int, ...]):
+    particle_stress = dispatch(models).particle_stress
+
+    @variant("p2g_slow", models=models)
+    def p2g_slow(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
+                 m: wp.array(dtype=float), p: wp.array(dtype=wp.vec3), f: wp.array(dtype=wp.vec3), reach: Reach):
+        # S at a block's open: Eq. 8's mass and APIC momentum, Eq. 10's force per unit time
+        q = wp.tid() + first
+        st = dense_stencil(g, s.x[q])
+        tau = wp.static(particle_stress)(materials[s.material[q]], s.F, s.history, q, s.C[q])
+        force = (-s.volume[q] * 4.0 * g.inv_dx * g.inv_dx) * tau
+        affine = s.mass[q] * s.C[q]
+        mv = s.mass[q] * s.v[q]
+        record_reach(g, st, reach)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    w = weight_at(st, i, j, k)
+                    n = dense_node_at(g, st, i, j, k)
+                    d = offset_at(g, st, i, j, k)
+                    wp.atomic_add(p, n, w * (mv + affine * d))
+                    wp.atomic_add(m, n, w * s.mass[q])
+                    wp.atomic_add(f, n, w * (force * d))
+
+    return p2g_slow
+
+
+@functools.cache
+def p2g_slow_kernel(models: tuple[int, ...] = ALL_MODELS):
+    return _make_p2g_slow(models)
+
+
+@wp.kernel
+def add_slow_sums(first: int, bounds: wp.array(dtype=wp.int32), extra: int, stride: int,
+                  pm_p: wp.array(dtype=wp.vec3), pm_m: wp.array(dtype=float), pf: wp.array(dtype=wp.vec3),
+                  p: wp.array(dtype=wp.vec3), m: wp.array(dtype=float), f: wp.array(dtype=wp.vec3),
+                  count: int, chunk: int):
+    # the extra CPU parts' S sums, in part order, where each reached; cleared after
+    n0 = (wp.tid() + first) * chunk
+    n1 = wp.min(n0 + chunk, count)
+    for t in range(extra):
+        lo = wp.max(n0, bounds[REACH_STRIDE * (t + 1)])
+        hi = wp.min(n1 - 1, bounds[REACH_STRIDE * (t + 1) + 1])
+        for n in range(lo, hi + 1):
+            q = t * stride + n
+            p[n] = p[n] + pm_p[q]
+            m[n] = m[n] + pm_m[q]
+            f[n] = f[n] + pf[q]
+            pm_p[q] = wp.vec3(0.0)
+            pm_m[q] = 0.0
+            pf[q] = wp.vec3(0.0)
+
+
+@wp.func
+def cell_of(g: GridSpec, x: wp.vec3):
+    # the flat index of the coarse cell holding x (clamped into the grid)
+    X = (x - g.origin) * g.inv_dx
+    i = wp.clamp(int(X[0]), 0, g.dims[0] - 2)
+    j = wp.clamp(int(X[1]), 0, g.dims[1] - 2)
+    k = wp.clamp(int(X[2]), 0, g.dims[2] - 2)
+    return (i * (g.dims[1] - 1) + j) * (g.dims[2] - 1) + k
+
+
+@wp.kernel
+def mark_core_cells(g: GridSpec, region: wp.array3d(dtype=wp.int32), color: ColorField, colliders: int,
+                    core: wp.array(dtype=wp.int32)):
+    # region cells, and cells with a corner node in a collider's node band
+    i, j, k = wp.tid()
+    c = (i * (g.dims[1] - 1) + j) * (g.dims[2] - 1) + k
+    v = region[i, j, k]
+    if colliders != 0:
+        for a in range(2):
+            for b in range(2):
+                for e in range(2):
+                    if color.body[dense_node_index(g, i + a, j + b, e + k)] >= 0:
+                        v = 1
+    core[c] = v
+
+
+@wp.kernel
+def mark_level1_cells(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
+                      core: wp.array(dtype=wp.int32)):
+    q = wp.tid() + first
+    if level[q] != 0:
+        core[cell_of(g, x[q])] = 1
+
+
+@wp.kernel
+def dilate_axis(src: wp.array3d(dtype=wp.int32), dst: wp.array3d(dtype=wp.int32), step: wp.vec3i, radius: int):
+    # dst = src grown by ``radius`` cells along the axis of ``step`` (three passes make a cube)
+    i, j, k = wp.tid()
+    v = int(0)
+    for a in range(-radius, radius + 1):
+        d = wp.vec3i(i, j, k) + a * step
+        if d[0] >= 0 and d[1] >= 0 and d[2] >= 0:
+            if d[0] < src.shape[0] and d[1] < src.shape[1] and d[2] < src.shape[2]:
+                v = wp.max(v, src[d[0], d[1], d[2]])
+    dst[i, j, k] = v
+
+
+class SlowSet:
+    """The slow set's arrays and its open / close (the solver calls these at host points)."""
+
+    def __init__(self, coarse, launcher: Launcher, device):
+        self.coarse = coarse
+        self.launcher = launcher
+        self.device = device
+        cells = tuple(d - 1 for d in coarse.dims)
+        self.cells = cells
+        self._core = wp.zeros(cells, dtype=wp.int32, device=device)
+        self._tmp = wp.zeros(cells, dtype=wp.int32, device=device)
+        self.near = wp.zeros(cells, dtype=wp.int32, device=device)  # the core grown by a halo
+        self._found = wp.zeros(1, dtype=wp.int32, device=device)
+        n = coarse.capacity
+        self.nodes = SlowNodes()
+        self.nodes.m = wp.zeros(n, dtype=float, device=device)
+        self.nodes.p = wp.zeros(n, dtype=wp.vec3, device=device)
+        self.nodes.f = wp.zeros(n, dtype=wp.vec3, device=device)
+        self.nodes.on = 0
+        extra = launcher.threads - 1
+        self._pf = wp.zeros(max(1, extra * n), dtype=wp.vec3, device=device)  # extra parts' forces
+        self.drift = 0.0  # how far the particles may have moved since the sort that chose S (m)
+        self.elapsed = 0.0  # length of the open block so far (s)
+        self.taken = 0  # substeps in the open block
+        self.dt = wp.zeros(1, dtype=float, device=device)  # the block's length at its close (G2P)
+        self.signal = Signals(1, launcher.threads, device)  # S's CFL signal at the close
+        self._kept_p = None  # S's node momentum at a segment start (rewind)
+
+    @property
+    def open(self) -> bool:
+        return self.nodes.on != 0
+
+    def grow_near(self, state: ParticleState, region: wp.array, color: ColorField, colliders: bool,
+                  level1: tuple[int, int], halo: int) -> wp.array:
+        """``near`` = the core (region, level-1 cells, collider bands) grown by ``halo`` cells."""
+        g = self.coarse.spec
+        wp.launch(mark_core_cells, self.cells, inputs=[g, region, color, int(colliders), self._core.flatten()],
+                  device=self.device)
+        first, count = level1
+        self.launcher.launch(mark_level1_cells, count, [state.x, state.level, g, self._core.flatten()],
+                             start=first)
+        src = self._core
+        for axis, dst in zip(range(3), (self._tmp, self.near, self._tmp)):
+            step = wp.vec3i(*(int(a == axis) for a in range(3)))
+            wp.launch(dilate_axis, self.cells, inputs=[src, dst, step, halo], device=self.device)
+            src = dst
+        wp.copy(self.near, self._tmp)
+        return self.near.flatten()
+
+    def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models) -> None:
+        """Open a block: S onto its node arrays (threads into private sums, added in part order)."""
+        s = self.nodes
+        s.m.zero_()
+        s.p.zero_()
+        s.f.zero_()
+        stride = s.m.shape[0]
+        private = self.launcher.private_grids("slow", s.p, s.m)
+        g = self.coarse.spec
+
+        def inputs(part, first, count):
+            f = s.f if part == 0 else self._pf[(part - 1) * stride:part * stride]
+            pp, pm = private.parts[part]
+            return [state.arrays(), materials, g, pm, pp, f, private.reach[part]]
+
+        self.launcher.launch(p2g_slow_kernel(models), slow[1], inputs, start=slow[0], label="P2G coarse (slow)",
+                             min_range=MIN_TRANSFER_RANGE)
+        if private.extra > 0:
+            chunk = 64
+            self.launcher.launch(add_slow_sums, -(-self.coarse.node_count // chunk),
+                                 [private.bounds, private.extra, stride, private.mv, private.m, self._pf,
+                                  s.p, s.m, s.f, self.coarse.node_count, chunk], label="slow sums", min_range=64)
+            self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label="reset slow")
+        s.on = 1
+        self.elapsed, self.taken = 0.0, 0
+
+    def due(self, block: int, refinement_next: bool) -> bool:
+        """Whether the open step must end before the next segment: it is ``block``
+        substeps long, or a refinement step (which may sort) comes next."""
+        return self.open and (self.taken >= block or refinement_next)
+
+    def segment_cap(self, block: int, due: bool) -> int | None:
+        """The most substeps the next segment may have, so that S's step ends with a
+        segment (None: no limit)."""
+        if block < 2:
+            return None
+        return block - self.taken if self.open and not due else block
+
+    def ran(self, substeps: int, dt: float, keep: bool) -> None:
+        """A segment of ``substeps`` begins inside the open step (with ``keep``, a copy
+        of S's node momentum for a rewind)."""
+        if self.open:
+            if keep:
+                self._kept_p = wp.clone(self.nodes.p)
+            self.taken += substeps
+            self.elapsed += substeps * dt
+
+    def unrun(self, substeps: int, dt: float) -> None:
+        """A rewind takes ``substeps`` of the segment back."""
+        if self.open:
+            wp.copy(self.nodes.p, self._kept_p)
+            self.taken -= substeps
+            self.elapsed -= substeps * dt
+
+    def gather(self, state: ParticleState, slow: tuple[int, int], g2p, common: list) -> tuple[float, float]:
+        """Close the step: S gathers from the coarse grid with its whole length T
+        (``g2p``, the coarse G2P kernel, with ``common`` up to its dt and signal, then
+        ``self.dt``, the rest and each part's signal slot). Returns S's CFL signal."""
+        elapsed = self.elapsed
+        self.nodes.on = 0
+        self.elapsed, self.taken = 0.0, 0
+        self.dt.fill_(elapsed)
+        self.signal.reset()
+        head, tail = common
+        slots = self.signal.slots[0]
+        self.launcher.launch(g2p, slow[1], lambda part, first, count: [*head, self.dt, *tail, slots[part]],
+                             start=slow[0], label="G2P coarse (slow)", min_range=MIN_TRANSFER_RANGE)
+        a = self.signal.read(1)[0]
+        self.drift += elapsed * float(a[0])  # S moved this far at most
+        return float(a[0]), float(a[1])
+
+
+def no_slow(device) -> SlowNodes:
+    """The grid update's argument where no slow set exists."""
+    s = SlowNodes()
+    s.m = wp.zeros(1, dtype=float, device=device)
+    s.p = wp.zeros(1, dtype=wp.vec3, device=device)
+    s.f = wp.zeros(1, dtype=wp.vec3, device=device)
+    s.on = 0
+    return s
+
+
+def split_off_slow(ranges: dict, n_slow: int) -> dict:
+    """Level ranges with the first ``n_slow`` level-0 particles as the range ``"slow"``,
+    left out of every other pass (if the particles are partitioned by level and there
+    are that many level-0 particles; else no slow range)."""
+    if 0 not in ranges or 1 not in ranges:  # one level
+        return {**ranges, "slow": [(0, 0)]}
+    level0, level1 = ranges[0], ranges[1]
+    if n_slow <= 0 or len(level0) != 1 or level0[0][0] != 0 or level0[0][1] < n_slow or level0 == ranges[None]:
+        return {**ranges, "slow": [(0, 0)]}
+    n0 = level0[0][1]
+    fast0 = [(n_slow, n0 - n_slow)]
+    return {0: fast0, 1: level1, None: fast0 + level1, "slow": [(0, n_slow)]}
