@@ -32,8 +32,10 @@ def test_the_scaling_suite_runs_end_to_end(tmp_path, monkeypatch):
     out = tmp_path / "scaling.json"
     result = run_bench(["--device", "cpu", "--suite", "scaling", "--json", str(out)])
     row, = result["scaling"]
-    for mode in ("original", "adaptive", "finest"):
+    for mode in ("original", "adaptive", "per_level", "finest"):
         assert row[mode]["wall_per_sim_s"] > 0 and row[mode]["steps_per_sim_s"] > 0
+    # per level the fine part takes the global step's substeps (sim/time_levels.py)
+    assert row["per_level"]["steps_per_sim_s"] == row["adaptive"]["steps_per_sim_s"]
     # adaptive holds more particles than original and fewer than finest
     assert row["original"]["particles"] < row["adaptive"]["particles"] < row["finest"]["particles"]
     assert json.loads(out.read_text())["scaling"][0]["length_m"] == pytest.approx(BASE)

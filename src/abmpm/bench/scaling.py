@@ -4,7 +4,9 @@ domain: a time step per level").
 
 A tank of water sloshing towards its right wall, 1, 2, 4 and 8 times 0.32 m long, with
 the same refinement box (0.16 m wide) at its right end in every length. Each length
-runs in original, adaptive and finest mode, one after the other in the same process;
+runs in original, adaptive (one global time step), adaptive with a time step per level
+(``time_steps = "per_level"``, sim/time_levels.py) and finest mode, one after the
+other in the same process;
 the figure is wall-clock seconds per simulated second (kernel compilation and the
 first step outside the timing). If adaptive cost follows the refined region,
 adaptive / original falls towards 1 as the tank grows and finest / adaptive rises; if
@@ -27,18 +29,21 @@ BASE, BOX = 0.32, 0.16  # m: the shortest tank; the refinement box's width at th
 HEIGHT, DEPTH, WIDTH = 0.24, 0.1, 0.08  # m: the tank's height, the water's depth, the tank's depth (z)
 DX, FACTOR = 0.02, 2  # coarse spacing, refinement factor b
 SLOSH = 0.5  # m/s: the water's initial speed towards the right wall
-MODES = ("original", "adaptive", "finest")
+MODES = ("original", "adaptive", "per_level", "finest")  # per_level: adaptive, a time step per level
 
 
 def sloshing_tank(length: int, mode: str = "adaptive") -> sm.Scene:
     """The tank ``length`` x BASE long, its water moving right at SLOSH, the refinement
-    box over its last BOX metres."""
+    box over its last BOX metres; ``mode`` one of MODES."""
     L = BASE * length
+    steps = "per_level" if mode == "per_level" else "global"
+    mode = "adaptive" if mode == "per_level" else mode
     return sm.Scene(
         name=f"scaling_tank_{length}x",
         simulation=sm.SimulationSettings(
             domain_max=(L, HEIGHT, WIDTH), dx=DX, fps=20, walls={"type": "slip"},
-            refinement={"mode": mode, "factor": FACTOR, "boxes": [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))]}),
+            refinement={"mode": mode, "factor": FACTOR, "boxes": [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))],
+                        "time_steps": steps}),
         materials=[sm.Fluid(name="water", bulk_modulus=4.0e4)],
         bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(L, DEPTH, WIDTH), velocity=(SLOSH, 0.0, 0.0))],
     )
@@ -53,7 +58,7 @@ def time_tank(length: int, mode: str, seconds: float, device: str) -> dict:
     wall = time.perf_counter() - t0
     return {"wall_per_sim_s": round(wall / (sim.time - t_sim), 3), "steps_per_sim_s": round((sim.steps - steps0)
                                                                                            / (sim.time - t_sim), 1),
-            "particles": sim.particle_count}
+            "particles": sim.particle_count, "slow": sim.solver.slow_count}
 
 
 def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path | None = None) -> list[dict]:
@@ -62,15 +67,18 @@ def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path 
     rows = []
     for length in lengths:
         row = {"length_m": round(BASE * length, 3), **{m: time_tank(length, m, seconds, device) for m in MODES}}
-        o, a, f = (row[m]["wall_per_sim_s"] for m in MODES)
+        o, a, pl, f = (row[m]["wall_per_sim_s"] for m in MODES)
         row["adaptive_over_original"] = round(a / o, 3)
         row["finest_over_adaptive"] = round(f / a, 3)
+        row["per_level_over_original"] = round(pl / o, 3)
+        row["finest_over_per_level"] = round(f / pl, 3)
         rows.append(row)
-        print(f"tank {row['length_m']} m: wall s per simulated s original {o}, adaptive {a}, finest {f} "
-              f"(particles {row['original']['particles']} / {row['adaptive']['particles']} / "
-              f"{row['finest']['particles']}; steps per simulated s {row['original']['steps_per_sim_s']} / "
-              f"{row['adaptive']['steps_per_sim_s']} / {row['finest']['steps_per_sim_s']}) -> adaptive / original "
-              f"{row['adaptive_over_original']}, finest / adaptive {row['finest_over_adaptive']}", flush=True)
+        print(f"tank {row['length_m']} m: wall s per simulated s original {o}, adaptive {a}, per level {pl}, "
+              f"finest {f} (particles {' / '.join(str(row[m]['particles']) for m in MODES)}; steps per simulated s "
+              f"{' / '.join(str(row[m]['steps_per_sim_s']) for m in MODES)}; slow particles at the end "
+              f"{row['per_level']['slow']}) -> adaptive / original {row['adaptive_over_original']}, per level / "
+              f"original {row['per_level_over_original']}, finest / per level {row['finest_over_per_level']}",
+              flush=True)
     if plot is not None:
         plot_scaling(rows, plot)
     return rows

@@ -206,15 +206,21 @@ class Refiner:
         g.grow(int(self.counter.numpy()[0]))
         return old
 
-    def split(self, state: ParticleState, next_id: int, colliders: ColliderArrays, materials: wp.array) -> int:
-        """Split the level-0 particles inside the region; returns how many were split."""
+    def split(self, state: ParticleState, next_id: int, colliders: ColliderArrays, materials: wp.array,
+              skip: int = 0) -> int:
+        """Split the level-0 particles inside the region; returns how many were split.
+        The first ``skip`` particles are far from the region (a time step per level's
+        slow set, sim/time_levels.py): no pass visits them."""
         n = state.count
         if n == 0 or not self.region_cells.any():
             return 0
         if self._flag.shape[0] < n:
             self._flag = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
             self._offset = wp.zeros(2 * n, dtype=wp.int32, device=self.device)
-        self.launcher.launch(flag_splits, n, [state.x, state.level, self.coarse.spec, self.region, self._flag])
+        if skip:
+            self._flag[:skip].zero_()
+        self.launcher.launch(flag_splits, n - skip, [state.x, state.level, self.coarse.spec, self.region, self._flag],
+                             start=skip)
         wp.utils.array_scan(self._flag, self._offset, inclusive=False)
         last = self._offset.numpy()[n - 1] + self._flag.numpy()[n - 1]  # host sync: the new count
         n_split = int(last)
@@ -227,8 +233,8 @@ class Refiner:
             self.surface.volume.zero_()
             f, spec = self.surface, self.coarse.spec
             private = self.launcher.private_grids("surface", f.grad, f.volume)
-            self.launcher.launch(scatter_surface_mass, n, lambda part, first, count: [
-                state.arrays(), materials, spec, f.near, *private.parts[part], private.reach[part]])
+            self.launcher.launch(scatter_surface_mass, n - skip, lambda part, first, count: [
+                state.arrays(), materials, spec, f.near, *private.parts[part], private.reach[part]], start=skip)
             if private.extra > 0:
                 chunk = CPU_NODE_CHUNK
                 self.launcher.launch(add_surface_sums, -(-self.coarse.node_count // chunk),
@@ -239,23 +245,26 @@ class Refiner:
             if self._shift.shape[0] < n:
                 self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
                 self._raw_shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
-            self.launcher.launch(family_shifts, n, [self._flag, state.arrays(), materials, self.surface,
-                                                    self.coarse.spec, self._points.id, self._raw_shift])
-            self.launcher.launch(keep_volume, n, [self._flag, state.x, self._points.id, 3.0 * self.coarse.dx,
-                                                  self._raw_shift, self._shift])
+            self.launcher.launch(family_shifts, n - skip, [self._flag, state.arrays(), materials, self.surface,
+                                                           self.coarse.spec, self._points.id, self._raw_shift],
+                                 start=skip)
+            self.launcher.launch(keep_volume, n - skip, [self._flag, state.x, self._points.id, 3.0 * self.coarse.dx,
+                                                         self._raw_shift, self._shift], start=skip)
             if wp.get_device(self.device).is_cpu:  # CPU launches are synchronous: this is the work itself
                 self.reconstruct_seconds += time.perf_counter() - t0
         state.reserve(n + n_split * (ns - 1))
-        self.launcher.launch(split_particles, n, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
-                                                  colliders, self.fine.spec, self.surface.enabled, self._shift])
+        self.launcher.launch(split_particles, n - skip, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
+                                                         colliders, self.fine.spec, self.surface.enabled, self._shift],
+                             start=skip)
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split
 
-    def activate(self, state: ParticleState) -> int:
-        """Give fine-grid blocks to level-1 particles that reach beyond the active ones;
-        returns the first new slot."""
-        self.launcher.launch(flag_particle_blocks, state.count, [state.x, state.level, self.fine.spec, self.wanted])
+    def activate(self, state: ParticleState, skip: int = 0) -> int:
+        """Give fine-grid blocks to level-1 particles that reach beyond the active ones
+        (the first ``skip`` are level 0); returns the first new slot."""
+        self.launcher.launch(flag_particle_blocks, state.count - skip, [state.x, state.level, self.fine.spec,
+                                                                        self.wanted], start=skip)
         return self._allocate()
 
 

@@ -53,7 +53,7 @@ from .refine import REFINE_EVERY, Refiner
 from .segments import Graphs, SegmentStart, Signals, buffer_key
 from .sorting import level_ranges, sort_by_cell
 from .state import FIELDS, ParticleState
-from .time_levels import GUARD_HALO, SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
+from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
 wp.set_module_options({"enable_backward": False})
 
@@ -276,7 +276,7 @@ class MPMSolver:
         self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
         if self.slow is not None and not self.slow.open and self.block > 1 and self._ranges["slow"][0][1]:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
-                if self.slow.drift > (SORT_HALO - GUARD_HALO) * self.grid.dx:  # S may have come near: chosen again
+                if self.slow.may_be_near():  # S chosen again
                     self.sort_by_cell(state)
                     self._find_level_ranges(state)
                 self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models)
@@ -470,13 +470,13 @@ class MPMSolver:
         """Split particles that entered the region (Eq. 15); activate the fine blocks
         the level-1 particles reach."""
         first_child = self._next_id
-        n_split = self.refiner.split(state, first_child, self.collider_arrays, self.materials)
+        skip = 0 if self.slow is None or self.slow.may_be_near() else self.slow_count  # S: far from the region
+        n_split = self.refiner.split(state, first_child, self.collider_arrays, self.materials, skip)
         if n_split:
             self._next_id += n_split * self.refiner.b**3
             self.color_particles(state, min_id=first_child)  # only the children moved
             self.sort_by_cell(state)  # the children joined at the end: each level contiguous again
-        first = self.refiner.activate(state)
-        self._after_activation(first)
+        self._after_activation(self.refiner.activate(state, 0 if n_split else skip))
 
     def _after_activation(self, first_slot: int) -> None:
         fine = self.grids[1]

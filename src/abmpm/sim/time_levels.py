@@ -41,6 +41,7 @@ from __future__ import annotations
 import functools
 
 import warp as wp
+from scipy import ndimage
 
 from .colliders import ColorField
 from .grid import GridSpec, dense_node_index
@@ -150,18 +151,20 @@ def cell_of(g: GridSpec, x: wp.vec3):
 
 @wp.kernel
 def mark_core_cells(g: GridSpec, region: wp.array3d(dtype=wp.int32), color: ColorField, colliders: int,
-                    core: wp.array(dtype=wp.int32)):
-    # region cells, and cells with a corner node in a collider's node band
+                    core: wp.array(dtype=wp.int32), banded: wp.array(dtype=wp.int32)):
+    # ``core``: the region's cells; ``banded``: cells with a corner node in a collider's
+    # node band (NODE_BAND cells)
     i, j, k = wp.tid()
     c = (i * (g.dims[1] - 1) + j) * (g.dims[2] - 1) + k
-    v = region[i, j, k]
+    core[c] = region[i, j, k]
+    v = int(0)
     if colliders != 0:
         for a in range(2):
             for b in range(2):
                 for e in range(2):
                     if color.body[dense_node_index(g, i + a, j + b, e + k)] >= 0:
                         v = 1
-    core[c] = v
+    banded[c] = v
 
 
 @wp.kernel
@@ -170,19 +173,6 @@ def mark_level1_cells(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dt
     q = wp.tid() + first
     if level[q] != 0:
         core[cell_of(g, x[q])] = 1
-
-
-@wp.kernel
-def dilate_axis(src: wp.array3d(dtype=wp.int32), dst: wp.array3d(dtype=wp.int32), step: wp.vec3i, radius: int):
-    # dst = src grown by ``radius`` cells along the axis of ``step`` (three passes make a cube)
-    i, j, k = wp.tid()
-    v = int(0)
-    for a in range(-radius, radius + 1):
-        d = wp.vec3i(i, j, k) + a * step
-        if d[0] >= 0 and d[1] >= 0 and d[2] >= 0:
-            if d[0] < src.shape[0] and d[1] < src.shape[1] and d[2] < src.shape[2]:
-                v = wp.max(v, src[d[0], d[1], d[2]])
-    dst[i, j, k] = v
 
 
 class SlowSet:
@@ -195,7 +185,7 @@ class SlowSet:
         cells = tuple(d - 1 for d in coarse.dims)
         self.cells = cells
         self._core = wp.zeros(cells, dtype=wp.int32, device=device)
-        self._tmp = wp.zeros(cells, dtype=wp.int32, device=device)
+        self._banded = wp.zeros(cells, dtype=wp.int32, device=device)
         self.near = wp.zeros(cells, dtype=wp.int32, device=device)  # the core grown by a halo
         self._found = wp.zeros(1, dtype=wp.int32, device=device)
         n = coarse.capacity
@@ -219,19 +209,20 @@ class SlowSet:
 
     def grow_near(self, state: ParticleState, region: wp.array, color: ColorField, colliders: bool,
                   level1: tuple[int, int], halo: int) -> wp.array:
-        """``near`` = the core (region, level-1 cells, collider bands) grown by ``halo`` cells."""
+        """``near`` = the core (region, level-1 cells) grown by ``halo`` cells (a cube),
+        and the cells with a corner node in a collider's node band grown by the drift a
+        re-sort allows (a particle outside is more than NODE_BAND - sqrt(3)/2 = 3.6 cells
+        from a surface, so a slow particle never comes within PARTICLE_BAND = 2.6 cells,
+        where CPIC starts, and never carries a collider's color): a flag per coarse cell, flat. Grown on the host (scipy's separable maximum filter): it runs
+        at sorts only, and a Warp kernel per axis cost ~30 ns a cell on the CPU."""
         g = self.coarse.spec
-        wp.launch(mark_core_cells, self.cells, inputs=[g, region, color, int(colliders), self._core.flatten()],
+        core = self._core.flatten()
+        wp.launch(mark_core_cells, self.cells, inputs=[g, region, color, int(colliders), core, self._banded.flatten()],
                   device=self.device)
-        first, count = level1
-        self.launcher.launch(mark_level1_cells, count, [state.x, state.level, g, self._core.flatten()],
-                             start=first)
-        src = self._core
-        for axis, dst in zip(range(3), (self._tmp, self.near, self._tmp)):
-            step = wp.vec3i(*(int(a == axis) for a in range(3)))
-            wp.launch(dilate_axis, self.cells, inputs=[src, dst, step, halo], device=self.device)
-            src = dst
-        wp.copy(self.near, self._tmp)
+        self.launcher.launch(mark_level1_cells, level1[1], [state.x, state.level, g, core], start=level1[0])
+        grown = ndimage.maximum_filter(self._core.numpy(), size=2 * halo + 1, mode="constant")
+        drift = SORT_HALO - GUARD_HALO
+        self.near.assign(grown | ndimage.maximum_filter(self._banded.numpy(), size=2 * drift + 1, mode="constant"))
         return self.near.flatten()
 
     def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models) -> None:
@@ -259,6 +250,11 @@ class SlowSet:
             self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label="reset slow")
         s.on = 1
         self.elapsed, self.taken = 0.0, 0
+
+    def may_be_near(self) -> bool:
+        """Whether the particles can have closed the gap between S and the core by
+        SORT_HALO - GUARD_HALO cells since the sort that chose S (then sort again)."""
+        return self.drift > (SORT_HALO - GUARD_HALO) * self.coarse.dx
 
     def due(self, block: int, refinement_next: bool) -> bool:
         """Whether the open step must end before the next segment: it is ``block``
