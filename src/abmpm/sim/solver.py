@@ -247,7 +247,7 @@ class MPMSolver:
     @property
     def slow_due(self) -> bool:
         """Whether the slow set's open step must end (``close_slow``) before the next segment."""
-        return self.slow is not None and self.slow.due(self.block, self._steps % REFINE_EVERY == 0)
+        return self.slow is not None and self.slow.due(self.block)
 
     def close_slow(self, state: ParticleState) -> tuple[float, float] | None:
         """End the slow set's step (a host point): it gathers from the coarse grid with
@@ -489,12 +489,11 @@ class MPMSolver:
     def sort_by_cell(self, state: ParticleState) -> None:
         """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
         device); in adaptive mode by level first, so that each level is one range."""
-        near = None
-        if self.slow is not None:
-            if self.slow.open:
-                raise RuntimeError("close the slow set's step before sorting")
+        near, first = None, self.slow_count if self.slow is not None and self.slow.open else 0
+        if self.slow is not None and not self.slow.open:  # the slow set chosen again
             near = self.slow.grow_near(state, self.refiner.region, self.grid.color, self.colliders is not None,
                                        (0, state.count), SORT_HALO)
             self.slow.drift = 0.0
-        self._sorted, self.slow_count = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
-                                                  self._sorted, near)
+        self._sorted, n_slow = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
+                                            self._sorted, near, first)  # an open slow step keeps its particles
+        self.slow_count = n_slow if first == 0 else self.slow_count

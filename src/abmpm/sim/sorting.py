@@ -23,13 +23,14 @@ Ranges = dict  # level (None: every level) -> [(first, count), ...]
 
 
 def sort_by_cell(state: ParticleState, coarse: GridSpec, by_level: bool, launcher: Launcher,
-                 scratch: ParticleState | None, near: wp.array | None = None) -> tuple[ParticleState | None, int]:
-    """Reorder ``state`` by coarse cell, by level first if ``by_level``; with ``near``
-    (a flag per coarse cell) the level-0 particles outside it come first, the slow set
-    of a time step per level (sim/time_levels.py). Returns the scratch copy used (reuse
-    it next time) and how many particles are slow."""
-    n = state.count
-    if n == 0:
+                 scratch: ParticleState | None, near: wp.array | None = None,
+                 first: int = 0) -> tuple[ParticleState | None, int]:
+    """Reorder particles ``first`` on by coarse cell, by level first if ``by_level``;
+    with ``near`` (a flag per coarse cell) the level-0 particles outside it come first,
+    the slow set of a time step per level (sim/time_levels.py). Returns the scratch copy
+    used (reuse it next time) and how many particles are slow."""
+    n = state.count - first
+    if n <= 0:
         return scratch, 0
     device = launcher.device
     keys = wp.empty(2 * n, dtype=wp.int32, device=device)
@@ -37,14 +38,14 @@ def sort_by_cell(state: ParticleState, coarse: GridSpec, by_level: bool, launche
     slow = wp.zeros(1, dtype=wp.int32, device=device)
     classes = near if near is not None else slow
     launcher.launch(_cell_keys, n, [state.x, state.level, int(by_level), coarse, classes, int(near is not None),
-                                    keys, perm, slow])
+                                    first, keys, perm, slow], start=first)
     wp.utils.radix_sort_pairs(keys, perm, n)
-    if scratch is None or scratch.capacity < n:
+    if scratch is None or scratch.capacity < state.count:
         scratch = ParticleState(**{name: wp.empty(state.capacity, dtype=DTYPES[name], device=device)
                                    for name in FIELDS})
-    launcher.launch(_permute, n, [state.arrays(), perm, scratch.arrays()])
+    launcher.launch(_permute, n, [state.arrays(), perm, first, scratch.arrays()], start=first)
     for name in FIELDS:
-        wp.copy(getattr(state, name), getattr(scratch, name), count=n)
+        wp.copy(getattr(state, name), getattr(scratch, name), dest_offset=first, src_offset=first, count=n)
     return scratch, int(slow.numpy()[0]) if near is not None else 0
 
 
@@ -68,11 +69,13 @@ def level_ranges(state: ParticleState, levels: list[int], two_levels: bool, scra
 
 @wp.kernel
 def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
-               g: GridSpec, near: wp.array(dtype=wp.int32), slow_first: int, keys: wp.array(dtype=wp.int32),
-               perm: wp.array(dtype=wp.int32), slow: wp.array(dtype=wp.int32)):
+               g: GridSpec, near: wp.array(dtype=wp.int32), slow_first: int, origin: int,
+               keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32), slow: wp.array(dtype=wp.int32)):
+    # keys and perm of particle p at p - origin (the sorted part's first particle)
     p = wp.tid() + first
+    q = p - origin
     b = stencil_base(g, x[p])
-    keys[p] = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
+    key = (b[0] * g.dims[1] + b[1]) * g.dims[2] + b[2]
     if by_level != 0:
         group = level[p]
         if slow_first != 0:  # slow (level 0 outside ``near``), level 0, level 1
@@ -80,8 +83,9 @@ def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.
             if level[p] == 0 and near[cell_of(g, x[p])] == 0:
                 group = 0
                 wp.atomic_add(slow, 0, 1)
-        keys[p] = keys[p] + group * g.dims[0] * g.dims[1] * g.dims[2]
-    perm[p] = p
+        key = key + group * g.dims[0] * g.dims[1] * g.dims[2]
+    keys[q] = key
+    perm[q] = p
 
 
 @wp.kernel
@@ -97,10 +101,10 @@ def _level_partition(level: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.int
 
 
 @wp.kernel
-def _permute(first: int, src: ParticleArrays, perm: wp.array(dtype=wp.int32), dst: ParticleArrays):
-    # dst[p] = src[perm[p]], every field in one pass
+def _permute(first: int, src: ParticleArrays, perm: wp.array(dtype=wp.int32), origin: int, dst: ParticleArrays):
+    # dst[p] = src[perm[p - origin]], every field in one pass
     p = wp.tid() + first
-    q = perm[p]
+    q = perm[p - origin]
     dst.x[p] = src.x[q]
     dst.v[p] = src.v[q]
     dst.C[p] = src.C[q]

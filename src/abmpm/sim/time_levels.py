@@ -33,7 +33,8 @@ shares a node with a level-1 particle's overlap scatter or reaches a fine node a
 level-1 particle gathers from. The solver adds up how far the particles can have moved
 since that sort (each substep dt times the fastest fast particle, each step of S its
 length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO cells, the
-next open sorts (and chooses S) again. Splits and frame ends sort anyway.
+next open sorts (and chooses S) again. Frame ends sort anyway. A split while a step of
+S is open sorts the other particles only: S keeps its place in the storage.
 """
 
 from __future__ import annotations
@@ -256,10 +257,9 @@ class SlowSet:
         SORT_HALO - GUARD_HALO cells since the sort that chose S (then sort again)."""
         return self.drift > (SORT_HALO - GUARD_HALO) * self.coarse.dx
 
-    def due(self, block: int, refinement_next: bool) -> bool:
-        """Whether the open step must end before the next segment: it is ``block``
-        substeps long, or a refinement step (which may sort) comes next."""
-        return self.open and (self.taken >= block or refinement_next)
+    def due(self, block: int) -> bool:
+        """Whether the open step must end before the next segment: it is ``block`` substeps long."""
+        return self.open and self.taken >= block
 
     def segment_cap(self, block: int, due: bool) -> int | None:
         """The most substeps the next segment may have, so that S's step ends with a
