@@ -89,7 +89,7 @@ class Refinement(_Strict):
     )
     merge: bool = Field(True, description="merge split families back once they have left the region")
     time_steps: Literal["global", "per_level"] = Field(
-        "global", description="per_level: level-0 particles far from the fine level take the coarse time step; "
+        "per_level", description="per_level: level-0 particles far from the fine level take the coarse time step; "
         "global: every particle takes the finest step"
     )
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
