@@ -491,7 +491,7 @@ class MPMSolver:
         device); in adaptive mode by level first, so that each level is one range."""
         near, first = None, self.slow_count if self.slow is not None and self.slow.open else 0
         if self.slow is not None and not self.slow.open:  # the slow set chosen again
-            near = self.slow.grow_near(state, self.refiner.region, self.grid.color, self.colliders is not None,
+            near = self.slow.grow_near(state, self.refiner.region_cells, self.grid.color, self.colliders is not None,
                                        (0, state.count), SORT_HALO)
             self.slow.drift = 0.0
         self._sorted, n_slow = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
