@@ -36,6 +36,11 @@ LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_sid
 # How far the sound speed of compressed fluid may rise before the time step follows
 # it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
 STIFFENING_SLACK = 2.0
+# What a time step per level costs and saves, in units of one level-0 particle's substep
+# (~190 ns on the 2-core CPU; paper panel and sloshing tank profiles, docs/benchmarks.md):
+# a slow particle's step (scatter and gather) 1.4; per coarse node, clearing and summing
+# the slow set's node arrays 0.032 a step and its share in the grid update 0.008 a substep.
+SLOW_STEP_COST, SLOW_NODE_STEP_COST, SLOW_NODE_SUBSTEP_COST = 1.4, 0.032, 0.008
 
 @dataclass(frozen=True)
 class Particles:
@@ -154,8 +159,10 @@ class Simulation:
         if self._signal_all:  # the slow set stepped with everyone: its speed is in the last signal
             self._slow_signal = self._signal
         k = min(SEGMENT_MAX, math.floor(self._slow_dt() / self.dt * (1.0 + 1e-9)), self._left)
-        # a slow step costs ~1.4 fast level-0 substeps (docs/benchmarks.md): it pays from k = 2
-        solver.block = k if k >= 2 and solver.slow_count > 0 else 1
+        # it pays where the slow particles' saving outweighs the grid-sized work it adds
+        saving = solver.slow_count * (k - SLOW_STEP_COST)
+        solver.block = k if saving > math.prod(solver.grid.dims) * (SLOW_NODE_STEP_COST + k * SLOW_NODE_SUBSTEP_COST) \
+            else 1
 
     def _checked_dt(self, signal: tuple[float, float]) -> float:
         """The CFL step for the last substep's signal (fastest particle, fluid
