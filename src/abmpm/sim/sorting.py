@@ -35,11 +35,13 @@ def sort_by_cell(state: ParticleState, coarse: GridSpec, by_level: bool, launche
     device = launcher.device
     keys = wp.empty(2 * n, dtype=wp.int32, device=device)
     perm = wp.empty(2 * n, dtype=wp.int32, device=device)
-    slow = wp.zeros(1, dtype=wp.int32, device=device)
+    slow = wp.full(1, n, dtype=wp.int32, device=device)  # the first key beyond the slow group
     classes = near if near is not None else slow
     launcher.launch(_cell_keys, n, [state.x, state.level, int(by_level), coarse, classes, int(near is not None),
-                                    first, keys, perm, slow], start=first)
+                                    first, keys, perm], start=first)
     wp.utils.radix_sort_pairs(keys, perm, n)
+    if near is not None:  # one thread writes: Warp's CPU atomics are plain adds, unsafe across threads
+        wp.launch(_group_end, n, inputs=[keys, coarse, slow], device=device)
     if scratch is None or scratch.capacity < state.count:
         scratch = ParticleState(**{name: wp.empty(state.capacity, dtype=DTYPES[name], device=device)
                                    for name in FIELDS})
@@ -70,7 +72,7 @@ def level_ranges(state: ParticleState, levels: list[int], two_levels: bool, scra
 @wp.kernel
 def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
                g: GridSpec, near: wp.array(dtype=wp.int32), slow_first: int, origin: int,
-               keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32), slow: wp.array(dtype=wp.int32)):
+               keys: wp.array(dtype=wp.int32), perm: wp.array(dtype=wp.int32)):
     # keys and perm of particle p at p - origin (the sorted part's first particle)
     p = wp.tid() + first
     q = p - origin
@@ -82,10 +84,22 @@ def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.
             group = group + 1
             if level[p] == 0 and near[cell_of(g, x[p])] == 0:
                 group = 0
-                wp.atomic_add(slow, 0, 1)
         key = key + group * g.dims[0] * g.dims[1] * g.dims[2]
     keys[q] = key
     perm[q] = p
+
+
+@wp.kernel
+def _group_end(keys: wp.array(dtype=wp.int32), g: GridSpec, end: wp.array(dtype=wp.int32)):
+    # end[0]: the first sorted key of group 1 or later (the slow group's size); at most
+    # one thread writes
+    q = wp.tid()
+    cells = g.dims[0] * g.dims[1] * g.dims[2]
+    if keys[q] >= cells:
+        if q == 0:
+            end[0] = 0
+        elif keys[q - 1] < cells:
+            end[0] = q
 
 
 @wp.kernel
