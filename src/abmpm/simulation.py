@@ -128,15 +128,16 @@ class Simulation:
     def _load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         self._state = ParticleState.from_numpy(arrays, self.device)
 
-    def cfl_dt(self, max_speed: float, stiffening: float = 1.0) -> float:
+    def cfl_dt(self, max_speed: float, stiffening: float = 1.0, dx: float | None = None) -> float:
         """CFL step on the finest active spacing for the wave speed plus the fastest
         particle, capped by max_dt. Where a fluid is compressed its sound speed is
         ``stiffening`` times the speed at rest; up to STIFFENING_SLACK of that is taken
         from the margin of the CFL number (the effective CFL number there stays below
-        cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks."""
+        cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks. ``dx``:
+        another spacing (the slow set's, the coarse one)."""
         st = self.scene.simulation
         c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
-        return cfl_time_step(st.cfl, st.max_dt, self.solver.finest_active_dx, c + max_speed)
+        return cfl_time_step(st.cfl, st.max_dt, dx or self.solver.finest_active_dx, c + max_speed)
 
     def _choose_dt(self, signal: tuple[float, float]) -> None:
         """At a frame start: the CFL step, shortened so that a whole number of equal
@@ -223,10 +224,7 @@ class Simulation:
 
     def _slow_dt(self) -> float:
         # the slow set's CFL step: the coarse spacing, its own fastest particle and stiffening
-        st = self.scene.simulation
-        max_speed, stiffening = self._slow_signal
-        c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
-        return cfl_time_step(st.cfl, st.max_dt, self.dx, c + max_speed)
+        return self.cfl_dt(*self._slow_signal, dx=self.dx)
 
     def _close_slow(self, recut: bool = False) -> None:
         # the slow set's step ends (sim/time_levels.py); its speed is checked like the

@@ -26,8 +26,8 @@ substeps is u + T (f^S / m^S + g): original mode's update with step T.
 
 Who is slow is decided when the particles are sorted (they are sorted by class, so S is
 one range): a level-0 particle whose cell is farther than SORT_HALO cells from the
-*core* (region cells, cells holding level-1 particles, cells within a collider's node
-band). S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
+*core* (region cells, cells holding level-1 particles) and outside a collider's node band
+grown by SORT_HALO - GUARD_HALO cells (``SlowSet.grow_near``). S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
 stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
 shares a node with a level-1 particle's overlap scatter or reaches a fine node a
 level-1 particle gathers from. The solver adds up how far the particles can have moved
@@ -49,7 +49,7 @@ from .colliders import ColorField
 from .grid import GridSpec, dense_node_index
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .p2g import record_reach
-from .parallel import MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, reset_reach
+from .parallel import MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums, reset_reach
 from .segments import Signals
 from .state import ParticleArrays, ParticleState
 from .stencil import dense_node_at, dense_stencil, offset_at, weight_at
@@ -57,7 +57,7 @@ from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
 
-GUARD_HALO = 3  # coarse cells: no S particle this close to the core (checked at every open)
+GUARD_HALO = 3  # coarse cells: no S particle this close to the core (the drift bound keeps it so)
 SORT_HALO = 5  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
 
 
@@ -121,24 +121,21 @@ def p2g_slow_kernel(models: tuple[int, ...] = ALL_MODELS):
 
 
 @wp.kernel
-def add_slow_sums(first: int, bounds: wp.array(dtype=wp.int32), extra: int, stride: int,
-                  pm_p: wp.array(dtype=wp.vec3), pm_m: wp.array(dtype=float), pf: wp.array(dtype=wp.vec3),
-                  p: wp.array(dtype=wp.vec3), m: wp.array(dtype=float), f: wp.array(dtype=wp.vec3),
-                  count: int, chunk: int):
-    # the extra CPU parts' S sums, in part order, where each reached; cleared after
+def add_slow_sums(first: int, sums: ThreadSums, pf: wp.array(dtype=wp.vec3), p: wp.array(dtype=wp.vec3),
+                  m: wp.array(dtype=float), f: wp.array(dtype=wp.vec3), count: int, chunk: int):
+    # the extra CPU parts' S sums, in part order, where each reached; cleared after:
+    # momentum and mass as the grid update adds P2G's, the forces (``pf``, stacked like
+    # ``sums.mv``) over the same spans
     n0 = (wp.tid() + first) * chunk
     n1 = wp.min(n0 + chunk, count)
-    for t in range(extra):
-        lo = wp.max(n0, bounds[REACH_STRIDE * (t + 1)])
-        hi = wp.min(n1 - 1, bounds[REACH_STRIDE * (t + 1) + 1])
+    for t in range(sums.extra):
+        lo = wp.max(n0, sums.bounds[REACH_STRIDE * (t + 1)])
+        hi = wp.min(n1 - 1, sums.bounds[REACH_STRIDE * (t + 1) + 1])
         for n in range(lo, hi + 1):
-            q = t * stride + n
-            p[n] = p[n] + pm_p[q]
-            m[n] = m[n] + pm_m[q]
+            q = t * sums.stride + n
             f[n] = f[n] + pf[q]
-            pm_p[q] = wp.vec3(0.0)
-            pm_m[q] = 0.0
             pf[q] = wp.vec3(0.0)
+    add_thread_sums(sums, n0, n1, p, m)
 
 
 @wp.func
@@ -184,7 +181,6 @@ class SlowSet:
         self._core = wp.zeros(cells, dtype=wp.int32, device=device)
         self._fixed = None  # ((region, halo) key, near from the region and colliders alone)
         self.near = wp.zeros(cells, dtype=wp.int32, device=device)  # the core grown by a halo
-        self._found = wp.zeros(1, dtype=wp.int32, device=device)
         n = coarse.capacity
         self.nodes = SlowNodes()
         self.nodes.m = wp.zeros(n, dtype=float, device=device)
@@ -198,7 +194,7 @@ class SlowSet:
         self.taken = 0  # substeps in the open block
         self.dt = wp.zeros(1, dtype=float, device=device)  # the block's length at its close (G2P)
         self.signal = Signals(1, launcher.threads, device)  # S's CFL signal at the close
-        self._kept_p = None  # S's node momentum at a segment start (rewind)
+        self._kept_p = None  # S's node momentum at a segment start (rewind; made on the first use)
 
     @property
     def open(self) -> bool:
@@ -260,8 +256,8 @@ class SlowSet:
         if private.extra > 0:
             chunk = 64
             self.launcher.launch(add_slow_sums, -(-self.coarse.node_count // chunk),
-                                 [private.bounds, private.extra, stride, private.mv, private.m, self._pf,
-                                  s.p, s.m, s.f, self.coarse.node_count, chunk], label="slow sums", min_range=64)
+                                 [private.sums, self._pf, s.p, s.m, s.f, self.coarse.node_count, chunk],
+                                 label="slow sums", min_range=64)
             self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label="reset slow")
         s.on = 1
         self.elapsed, self.taken = 0.0, 0
@@ -287,7 +283,9 @@ class SlowSet:
         of S's node momentum for a rewind)."""
         if self.open:
             if keep:
-                self._kept_p = wp.clone(self.nodes.p)
+                if self._kept_p is None:
+                    self._kept_p = wp.empty_like(self.nodes.p)
+                wp.copy(self._kept_p, self.nodes.p)
             self.taken += substeps
             self.elapsed += substeps * dt
 
@@ -330,10 +328,9 @@ def split_off_slow(ranges: dict, n_slow: int) -> dict:
     """Level ranges with the first ``n_slow`` level-0 particles as the range ``"slow"``,
     left out of every other pass (if the particles are partitioned by level and there
     are that many level-0 particles; else no slow range)."""
-    if 0 not in ranges or 1 not in ranges:  # one level
-        return {**ranges, "slow": [(0, 0)]}
-    level0, level1 = ranges[0], ranges[1]
-    if n_slow <= 0 or len(level0) != 1 or level0[0][0] != 0 or level0[0][1] < n_slow or level0 == ranges[None]:
+    level0, level1 = ranges.get(0), ranges.get(1)
+    if (level0 is None or level1 is None or n_slow <= 0 or len(level0) != 1 or level0[0][0] != 0
+            or level0[0][1] < n_slow or level0 == ranges[None]):  # one level, none slow, or unsorted
         return {**ranges, "slow": [(0, 0)]}
     n0 = level0[0][1]
     fast0 = [(n_slow, n0 - n_slow)]
