@@ -18,7 +18,6 @@ from .time_levels import SlowNodes, add_slow, keep_slow_share
 
 wp.set_module_options({"enable_backward": False})
 
-CPU_NODE_CHUNK = 64  # nodes per kernel thread on the CPU (1 on a GPU)
 
 
 @wp.func

@@ -45,6 +45,7 @@ MIN_RANGE = 4096  # below this many items per thread, one thread is faster
 # thread (~40 us on a 2-core VM with recorded launches); docs/benchmarks.md, "Small
 # ranges and launch overhead", has the measurements.
 MIN_TRANSFER_RANGE = 512
+CPU_NODE_CHUNK = 64  # nodes per kernel thread of a node pass on the CPU (1 on a GPU)
 EMPTY_BOUND = wp.constant(2**31 - 1)  # the low end of a private grid's reached range before any P2G
 # 4-byte words in a 64-byte cache line: per-thread slots that every particle updates
 # (P2G's reached spans, G2P's CFL signal) lie this far apart, or two threads writing

@@ -21,8 +21,7 @@ from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
 from .grid import BLOCK, Grid, GridSpec
-from .grid_update import CPU_NODE_CHUNK
-from .parallel import Launcher, reset_reach
+from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
     SurfaceField,

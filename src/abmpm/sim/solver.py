@@ -45,10 +45,10 @@ from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_
 from .config import SolverConfig
 from .g2p import g2p_kernel
 from .grid import Grid
-from .grid_update import CPU_NODE_CHUNK, grid_update
+from .grid_update import grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import p2g_kernel
-from .parallel import MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
+from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
 from .segments import Graphs, SegmentStart, Signals, buffer_key
 from .sorting import level_ranges, sort_by_cell

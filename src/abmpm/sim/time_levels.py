@@ -49,7 +49,8 @@ from .colliders import ColorField
 from .grid import GridSpec, dense_node_index
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .p2g import record_reach
-from .parallel import MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums, reset_reach
+from .parallel import (CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums,
+                       reset_reach)
 from .segments import Signals
 from .state import ParticleArrays, ParticleState
 from .stencil import dense_node_at, dense_stencil, offset_at, weight_at
@@ -254,7 +255,7 @@ class SlowSet:
         self.launcher.launch(p2g_slow_kernel(models), slow[1], inputs, start=slow[0], label="P2G coarse (slow)",
                              min_range=MIN_TRANSFER_RANGE)
         if private.extra > 0:
-            chunk = 64
+            chunk = CPU_NODE_CHUNK  # only CPU parts have extra sums
             self.launcher.launch(add_slow_sums, -(-self.coarse.node_count // chunk),
                                  [private.sums, self._pf, s.p, s.m, s.f, self.coarse.node_count, chunk],
                                  label="slow sums", min_range=64)
