@@ -30,6 +30,8 @@ HEIGHT, DEPTH, WIDTH = 0.24, 0.1, 0.08  # m: the tank's height, the water's dept
 DX, FACTOR = 0.02, 2  # coarse spacing, refinement factor b
 SLOSH = 0.5  # m/s: the water's initial speed towards the right wall
 MODES = ("original", "adaptive", "per_level", "finest")  # per_level: adaptive, a time step per level
+LABELS = {"original": "original", "adaptive": "adaptive, global step", "per_level": "adaptive, step per level",
+          "finest": "finest"}
 
 
 def sloshing_tank(length: int, mode: str = "adaptive") -> sm.Scene:
@@ -89,7 +91,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     ax = fig.subplots()
     x = [r["length_m"] for r in rows]
     for mode in MODES:
-        ax.plot(x, [r[mode]["wall_per_sim_s"] for r in rows], "o-", label=mode)
+        ax.plot(x, [r[mode]["wall_per_sim_s"] for r in rows], "o-", label=LABELS[mode])
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_xticks(x, [f"{v:g}" for v in x], minor=False)
@@ -97,7 +99,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     ax.set_xlabel(f"tank length (m); refined box {BOX} m wide at its end")
     ax.set_ylabel("wall s per simulated s")
     ax.set_title("Cost against the size of the scene")
-    ax.legend()
+    ax.legend(loc="upper left", fontsize="small")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
