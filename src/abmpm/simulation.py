@@ -160,6 +160,9 @@ class Simulation:
         if self._signal_all:  # the slow set stepped with everyone: its speed is in the last signal
             self._slow_signal = self._signal
         k = min(SEGMENT_MAX, math.floor(self._slow_dt() / self.dt * (1.0 + 1e-9)), self._left)
+        # where its step cannot be longer (max_dt binds, or too few substeps left) the sorts
+        # stop choosing it: on a GPU that choice is a host round trip per sort
+        solver.choose_slow = k >= 2
         # it pays where the slow particles' saving outweighs the grid-sized work it adds
         saving = solver.slow_count * (k - SLOW_STEP_COST)
         solver.block = k if saving > math.prod(solver.grid.dims) * (SLOW_NODE_STEP_COST + k * SLOW_NODE_SUBSTEP_COST) \

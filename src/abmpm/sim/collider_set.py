@@ -246,6 +246,7 @@ def color_field(n: int, device) -> ColorField:
     f.dir = wp.zeros(n, dtype=wp.vec3, device=device)
     f.body = wp.full(n, -1, dtype=wp.int32, device=device)
     f.rim = wp.zeros(n, dtype=float, device=device)
+    f.face = wp.full(n, -1, dtype=wp.int32, device=device)
     return f
 
 
@@ -254,7 +255,7 @@ def grow_color_field(f: ColorField, n: int) -> ColorField:
     if f.dist.shape[0] >= n:
         return f
     g = color_field(n, f.dist.device)
-    for name in ("dist", "dir", "body", "rim"):
+    for name in ("dist", "dir", "body", "rim", "face"):
         wp.copy(getattr(g, name), getattr(f, name), count=getattr(f, name).shape[0])
     return g
 

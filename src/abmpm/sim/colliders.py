@@ -94,6 +94,7 @@ class ColorField:
     dir: wp.array(dtype=wp.vec3)
     body: wp.array(dtype=wp.int32)
     rim: wp.array(dtype=float)  # from the closest point along the surface to its nearest rim (node_color.py)
+    face: wp.array(dtype=wp.int32)  # the triangle of the closest point (-1: none)
 
 
 @wp.func(inline=True)
@@ -340,11 +341,13 @@ def color_node(colliders: ColliderArrays, g: GridSpec, f: ColorField, n: int, c:
         f.dir[n] = col.surface_side
         f.body[n] = col.body
         f.rim[n] = rim_distance(colliders, g, col)
+        f.face[n] = col.face
     else:
         f.dist[n] = FAR
         f.dir[n] = wp.vec3(0.0)
         f.body[n] = -1
         f.rim[n] = 0.0
+        f.face[n] = -1
 
 
 @wp.kernel

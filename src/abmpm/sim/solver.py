@@ -130,6 +130,7 @@ class MPMSolver:
         self._no_slow = no_slow(device)
         self.slow_count = 0  # particles of the slow set, at the front of the storage (counted at each sort)
         self.block = 1  # substeps per step of the slow set (set by the time stepping)
+        self.choose_slow = True  # whether a sort chooses the slow set (off while its step could not be longer)
         self._kernels_loaded = False
         self._graphs = Graphs()  # captured segments (run_segment)
 
@@ -490,7 +491,7 @@ class MPMSolver:
         """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
         device); in adaptive mode by level first, so that each level is one range."""
         near, first = None, self.slow_count if self.slow is not None and self.slow.open else 0
-        if self.slow is not None and not self.slow.open:  # the slow set chosen again
+        if self.slow is not None and not self.slow.open and self.choose_slow:  # the slow set chosen again
             near = self.slow.grow_near(state, self.refiner.region_cells, self.grid.color, self.colliders is not None,
                                        (0, state.count), SORT_HALO)
             self.slow.drift = 0.0
