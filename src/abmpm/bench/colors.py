@@ -43,7 +43,7 @@ def _band_colors(x: wp.array(dtype=wp.vec3), side: wp.array(dtype=wp.vec3), dist
     bound = wp.min(dist[p] + (MOTION + 0.01) * g.dx, PARTICLE_BAND * g.dx)
     body[p] = NEEDS_QUERY
     if from_nodes != 0:
-        c = color_from_nodes(f, g, x[p], side[p], True)
+        c = color_from_nodes(f, g, colliders, x[p], side[p], True)
         body[p] = c.body
         found[p] = wp.length(x[p] - c.surface_point)
     if body[p] == NEEDS_QUERY:

@@ -20,6 +20,7 @@ from .colliders import (
     ColliderBody,
     ColorField,
     color_node_box,
+    face_clearance,
     color_node_range,
 )
 from .grid import BLOCK_NODES, Grid
@@ -97,9 +98,24 @@ class ColliderSet:
         # moving collider's field is rebuilt every substep: no time for a second query)
         self.rims = rim_mesh(self.rest, self.faces, device) if self.static else None
         self.arrays.rims = self.rims.id if self.rims is not None else wp.uint64(0)
+        self.arrays.face_clear = self._face_clearance(device)
         self.time = None
         self._region = {}  # grid id -> node box last colored
         self.set_time(0.0)
+
+    def _face_clearance(self, device) -> wp.array:
+        """Per triangle, a lower bound of its distance to the nearest rim (boundary edge)
+        of any collider, for node_color.py's nearby faces; static colliders only (zero,
+        never enough, where a collider moves: the rims move with it)."""
+        n = len(self.faces)
+        if not self.static:
+            return wp.zeros(n, dtype=float, device=device)
+        rims = rim_mesh(self.rest, self.faces, device, creases=False)
+        if rims is None:  # closed surfaces: no rim anywhere
+            return wp.full(n, FAR, dtype=float, device=device)
+        clear = wp.zeros(n, dtype=float, device=device)
+        wp.launch(face_clearance, n, [self.mesh.id, rims.id, clear], device=device)
+        return clear
 
     @property
     def triangle_count(self) -> int:
@@ -203,16 +219,23 @@ class ColliderSet:
                         label=f"color {grid.name}", min_range=NODE_RANGE)
 
 
-def rim_mesh(vertices: np.ndarray, faces: np.ndarray, device) -> wp.Mesh | None:
+def boundary_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The edges of one triangle only (rims of sheets and holes), as vertex pairs."""
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    return mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)].reshape(-1, 2)
+
+
+def rim_mesh(vertices: np.ndarray, faces: np.ndarray, device, creases: bool = True) -> wp.Mesh | None:
     """The edges of a triangle mesh where it stops being one plane, as a BVH mesh of
     sliver triangles (a, b and b moved off the edge by 1e-4 of its length: Warp's
     query skips degenerate triangles): boundary edges (one triangle: rims of sheets
-    and holes) and creases (two triangles meeting at more than CREASE_DEGREES).
-    None when there is none."""
-    mesh = trimesh.Trimesh(vertices, faces, process=False)
-    boundary = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
-    creases = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(CREASE_DEGREES)]
-    edges = np.concatenate([boundary.reshape(-1, 2), creases.reshape(-1, 2)])
+    and holes) and, with ``creases``, creases (two triangles meeting at more than
+    CREASE_DEGREES). None when there is none."""
+    edges = boundary_edges(vertices, faces)
+    if creases:
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        edges = np.concatenate([edges, mesh.face_adjacency_edges[mesh.face_adjacency_angles
+                                                                 > np.radians(CREASE_DEGREES)].reshape(-1, 2)])
     if len(edges) == 0:
         return None
     a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
@@ -236,6 +259,7 @@ def empty_colliders(device) -> ColliderArrays:
     s.face_body = wp.zeros(1, dtype=wp.int32, device=device)
     s.bodies = wp.zeros(1, dtype=ColliderBody, device=device)
     s.rims = wp.uint64(0)
+    s.face_clear = wp.zeros(1, dtype=float, device=device)
     return s
 
 

@@ -84,6 +84,7 @@ class ColliderArrays:
     face_body: wp.array(dtype=wp.int32)
     bodies: wp.array(dtype=ColliderBody)
     rims: wp.uint64  # static colliders: their rims and creases as segments (0: none, node_color.py)
+    face_clear: wp.array(dtype=float)  # per triangle: at least its distance to any rim (node_color.py)
 
 
 @wp.struct
@@ -363,3 +364,19 @@ def color_node_range(first: int, colliders: ColliderArrays, g: GridSpec, f: Colo
     # sparse grid: a range of storage indices (whole blocks)
     n = first + wp.tid()
     color_node(colliders, g, f, n, node_coords(g, n))
+
+
+@wp.kernel
+def face_clearance(mesh: wp.uint64, rims: wp.uint64, clear: wp.array(dtype=float)):
+    # the triangle lies in the ball of radius r around its centroid, so it is at least
+    # the centroid's distance to the rims less r from every rim
+    t = wp.tid()
+    a = wp.mesh_get_point(mesh, 3 * t)
+    b = wp.mesh_get_point(mesh, 3 * t + 1)
+    c = wp.mesh_get_point(mesh, 3 * t + 2)
+    m = (a + b + c) / 3.0
+    r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
+    clear[t] = 0.0
+    q = wp.mesh_query_point_no_sign(rims, m, 1.0e10)
+    if q.result:
+        clear[t] = wp.max(0.0, wp.length(m - wp.mesh_eval_position(rims, q.face, q.u, q.v)) - r)

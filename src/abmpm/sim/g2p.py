@@ -105,7 +105,7 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, s
     if near_surface(color, g, x_end):
         # color for the next step's transfers; the new closest point lies within the
         # old distance plus the motion (triangle inequality)
-        c = color_from_nodes(color, g, x_end, side, cb >= 0)
+        c = color_from_nodes(color, g, colliders, x_end, side, cb >= 0)
         if c.body == NEEDS_QUERY:
             c = color_point(colliders, g, x_end, wp.min(reach, PARTICLE_BAND * g.dx), side)
             if c.body < 0 and reach < PARTICLE_BAND * g.dx:

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .colliders import NODE_BAND, PARTICLE_BAND, Color, ColorField
+from .colliders import NODE_BAND, PARTICLE_BAND, Color, ColliderArrays, ColorField
 from .grid import GridSpec, nearest_node_coords, node_index, node_position
 
 wp.set_module_options({"enable_backward": False})
@@ -59,8 +59,48 @@ def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
     return n, wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
 
 
+@wp.func
+def closest_on_triangle(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
+    """The point of triangle abc closest to p: the face, an edge or a vertex, whichever
+    Voronoi region of the triangle p projects into (Ericson, Real-Time Collision
+    Detection, Section 5.1.5)."""
+    ab = b - a
+    ac = c - a
+    d1 = wp.dot(ab, p - a)
+    d2 = wp.dot(ac, p - a)
+    if d1 <= 0.0 and d2 <= 0.0:
+        return a
+    d3 = wp.dot(ab, p - b)
+    d4 = wp.dot(ac, p - b)
+    if d3 >= 0.0 and d4 <= d3:
+        return b
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        return a + (d1 / (d1 - d3)) * ab
+    d5 = wp.dot(ab, p - c)
+    d6 = wp.dot(ac, p - c)
+    if d6 >= 0.0 and d5 <= d6:
+        return c
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        return a + (d2 / (d2 - d6)) * ac
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        return b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b)
+    den = 1.0 / (va + vb + vc)
+    return a + (vb * den) * ab + (vc * den) * ac
+
+
 @wp.func(inline=True)
-def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3,
+def face_point(colliders: ColliderArrays, face: int, x: wp.vec3):
+    # the point of collider triangle ``face`` closest to x
+    return closest_on_triangle(x, wp.mesh_get_point(colliders.mesh, 3 * face),
+                               wp.mesh_get_point(colliders.mesh, 3 * face + 1),
+                               wp.mesh_get_point(colliders.mesh, 3 * face + 2))
+
+
+@wp.func(inline=True)
+def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: wp.vec3, hint: wp.vec3,
                      remembered: bool):
     """The color of x read from the nodes (module docstring), where they vouch for it;
     else ``body`` NEEDS_QUERY (ask the BVH). ``hint``: the side x had, away from the
@@ -81,10 +121,13 @@ def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3,
     lo = wp.vec3(1.0)  # per-axis bounds of the directions of the nodes whose balls hold x
     hi = wp.vec3(-1.0)
     flat = int(1)  # every such node's closest point has a plane around it (a rim distance)
+    faces = wp.vec3i(-1)  # the closest faces of the three nodes: candidates for x's own
     for k in range(3):
         node = nearest_node_coords(g, x + float(k) * step)
         n, b = node_ball(f, g, x, node)
         lb = wp.max(lb, b)
+        if n >= 0:
+            faces[k] = f.face[n]
         if n >= 0 and b > 0.0 and f.body[n] >= 0:
             # x lies in the node's ball, so on its side
             if f.rim[n] <= 0.0:
@@ -98,16 +141,38 @@ def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3,
     if lb >= PARTICLE_BAND * g.dx:
         c.body = -1
         return c
-    if plane < 0 or flat == 0 or lb < NODE_COLOR_MIN * g.dx or wp.length(hi - lo) > NODE_COLOR_SPREAD:
+    if lb < NODE_COLOR_MIN * g.dx:
         return c
-    nrm = f.dir[plane]
-    foot = plane_x - f.dist[plane] * nrm
-    d = wp.dot(x - foot, nrm)
-    c.surface_point = x - d * nrm
-    # a point of the surface (the node's plane reaches that far) within the distance
-    # bound's tolerance: the closest point, or off by at most the tolerance
-    if d - lb > NODE_COLOR_TOL * g.dx or wp.length(c.surface_point - foot) >= f.rim[plane]:
-        return c
-    c.surface_side = nrm
-    c.body = f.body[plane]
+    if plane >= 0 and flat == 1 and wp.length(hi - lo) <= NODE_COLOR_SPREAD:
+        nrm = f.dir[plane]
+        foot = plane_x - f.dist[plane] * nrm
+        d = wp.dot(x - foot, nrm)
+        # a point of the surface (the node's plane reaches that far) within the distance
+        # bound's tolerance: the closest point, or off by at most the tolerance
+        if d - lb <= NODE_COLOR_TOL * g.dx and wp.length(x - d * nrm - foot) < f.rim[plane]:
+            c.surface_point = x - d * nrm
+            c.surface_side = nrm
+            c.body = f.body[plane]
+            return c
+    # the nodes' closest faces: the nearest of their points to x is a point of the
+    # surface, so its distance bounds x's from above; within the tolerance of the lower
+    # bound it is x's closest point or off by at most the tolerance (curved surfaces,
+    # creases, moving colliders: no plane needed)
+    best = int(-1)
+    best_d = float(PARTICLE_BAND) * g.dx
+    best_x = wp.vec3(0.0)
+    for k in range(3):
+        if faces[k] >= 0:
+            q = face_point(colliders, faces[k], x)
+            dq = wp.length(x - q)
+            if dq < best_d:
+                best_d = dq
+                best = faces[k]
+                best_x = q
+    # ... unless a rim is within 2 best_d of that face: x's closest point may then lie on
+    # the rim (|rim - x| <= best_d), where x's side is not the face's (a hole, a slit)
+    if best >= 0 and best_d - lb <= NODE_COLOR_TOL * g.dx and colliders.face_clear[best] > 2.0 * best_d:
+        c.surface_point = best_x
+        c.surface_side = (x - best_x) / best_d
+        c.body = colliders.face_body[best]
     return c
