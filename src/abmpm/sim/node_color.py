@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import warp as wp
 
-from .colliders import NODE_BAND, PARTICLE_BAND, Color, ColliderArrays, ColorField
+from .colliders import NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node
 from .grid import GridSpec, nearest_node_coords, node_index, node_position
+from .stencil import stencil_base
 
 wp.set_module_options({"enable_backward": False})
 
@@ -99,6 +100,24 @@ def face_point(colliders: ColliderArrays, face: int, x: wp.vec3):
                                wp.mesh_get_point(colliders.mesh, 3 * face + 2))
 
 
+@wp.func
+def stencil_facing(f: ColorField, g: GridSpec, x: wp.vec3):
+    """Whether no node of x's 3x3x3 stencil lies on a surface or has x behind its
+    tangent plane: then CPIC's test (``colliders.compatible``) keeps every node, whatever
+    x's own closest point, and the color only bounds x's distance."""
+    base = stencil_base(g, x)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                c = base + wp.vec3i(i, j, k)
+                n = node_index(g, c[0], c[1], c[2])
+                if n >= 0:
+                    if f.body[n] >= 0:
+                        if f.dist[n] < ON_NODE * g.dx or behind_node(f, n, node_position(g, c), x):
+                            return False
+    return True
+
+
 @wp.func(inline=True)
 def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: wp.vec3, hint: wp.vec3,
                      remembered: bool):
@@ -153,6 +172,7 @@ def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
             c.surface_point = x - d * nrm
             c.surface_side = nrm
             c.body = f.body[plane]
+            c.flat = 1  # the plane's normal
             return c
     # the nodes' closest faces: the nearest of their points to x is a point of the
     # surface, so its distance bounds x's from above; within the tolerance of the lower
@@ -171,7 +191,8 @@ def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
                 best_x = q
     # ... unless a rim is within 2 best_d of that face: x's closest point may then lie on
     # the rim (|rim - x| <= best_d), where x's side is not the face's (a hole, a slit)
-    if best >= 0 and best_d - lb <= NODE_COLOR_TOL * g.dx and colliders.face_clear[best] > 2.0 * best_d:
+    if best >= 0 and best_d - lb <= NODE_COLOR_TOL * g.dx and colliders.face_clear[best] > 2.0 * best_d \
+            and stencil_facing(f, g, x):
         c.surface_point = best_x
         c.surface_side = (x - best_x) / best_d
         c.body = colliders.face_body[best]
