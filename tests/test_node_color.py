@@ -13,7 +13,7 @@ from abmpm.scene import model as sm
 from abmpm.sim.colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point, compatibility_mask, near_surface
 from abmpm.sim.grid import GridSpec
 from abmpm.sim.stencil import dense_stencil
-from abmpm.sim.node_color import NEEDS_QUERY, color_from_nodes
+from abmpm.sim.node_color import NEEDS_QUERY, color_from_faces, color_from_nodes
 from abmpm.simulation import Simulation
 
 # Float32 round-off: positions ~0.5 m carry ~3e-8 m of error, ~1e-6 of a cell; the
@@ -35,7 +35,9 @@ def compare_colors(x: wp.array(dtype=wp.vec3), side: wp.array(dtype=wp.vec3), bo
     # the BVH searched a little beyond the band: a color the nodes take at the band's
     # edge is compared with the BVH's, not with "none"
     exact = color_point(colliders, g, x[p], 2.0 * PARTICLE_BAND * g.dx, side[p])
-    c = color_from_nodes(f, g, colliders, x[p], side[p], body[p] >= 0)
+    c = color_from_nodes(f, g, x[p], side[p], body[p] >= 0)
+    if c.body == NEEDS_QUERY:  # G2P's query_color asks the faces before the BVH
+        c = color_from_faces(f, g, colliders, x[p], side[p])
     taken[p] = c.body
     if c.body >= 0:
         if exact.body < 0:
@@ -101,7 +103,9 @@ def compare_masks(x: wp.array(dtype=wp.vec3), side: wp.array(dtype=wp.vec3), col
                   f: ColorField, taken: wp.array(dtype=wp.int32), same: wp.array(dtype=wp.int32)):
     # CPIC's compatibility mask of the stencil with the color from the nodes and with the BVH's
     p = wp.tid()
-    c = color_from_nodes(f, g, colliders, x[p], side[p], True)
+    c = color_from_nodes(f, g, x[p], side[p], True)
+    if c.body == NEEDS_QUERY:
+        c = color_from_faces(f, g, colliders, x[p], side[p])
     exact = color_point(colliders, g, x[p], 2.0 * PARTICLE_BAND * g.dx, side[p])
     taken[p] = c.body
     if c.flat == 1:

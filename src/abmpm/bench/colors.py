@@ -7,7 +7,8 @@ points in one run:
 * ``bvh``: the BVH's closest-point query, bounded by the particle's distance plus
   its motion (what every band particle paid before ``sim/node_color.py``);
 * ``nodes``: what G2P does now, the color read from the nodes' field where they
-  vouch for it (``color_from_nodes``), the same BVH query elsewhere.
+  vouch for it (``color_from_nodes``, then ``color_from_faces``), the same BVH query
+  elsewhere.
 
 The points are sampled on the inside of a collider (area-weighted over its
 triangles, 0.05 to 2.6 cells from the surface, the band's extent) so the figure
@@ -27,7 +28,7 @@ import warp as wp
 from ..scene.loader import load_scene
 from ..sim.colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point
 from ..sim.grid import GridSpec
-from ..sim.node_color import NEEDS_QUERY, color_from_nodes
+from ..sim.node_color import NEEDS_QUERY, color_from_faces, color_from_nodes
 from ..simulation import Simulation
 
 # cells: a band particle's motion in one CFL step (cfl 0.4 of a cell at the fastest
@@ -43,7 +44,9 @@ def _band_colors(x: wp.array(dtype=wp.vec3), side: wp.array(dtype=wp.vec3), dist
     bound = wp.min(dist[p] + (MOTION + 0.01) * g.dx, PARTICLE_BAND * g.dx)
     body[p] = NEEDS_QUERY
     if from_nodes != 0:
-        c = color_from_nodes(f, g, colliders, x[p], side[p], True)
+        c = color_from_nodes(f, g, x[p], side[p], True)
+        if c.body == NEEDS_QUERY:  # what G2P's query_color does first
+            c = color_from_faces(f, g, colliders, x[p], side[p])
         body[p] = c.body
         found[p] = wp.length(x[p] - c.surface_point)
     if body[p] == NEEDS_QUERY:

@@ -30,7 +30,7 @@ from .colliders import (
 )
 from .grid import GridSpec, node_index
 from .materials import ALL_MODELS, MaterialParams, dispatch
-from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes
+from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
 from .stencil import STORAGE, Stencil, offset_at, weight_at
 from .variant import variant
@@ -105,9 +105,9 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, s
     if near_surface(color, g, x_end):
         # color for the next step's transfers; the new closest point lies within the
         # old distance plus the motion (triangle inequality)
-        c = color_from_nodes(color, g, colliders, x_end, side, cb >= 0)
+        c = color_from_nodes(color, g, x_end, side, cb >= 0)
         if c.body == NEEDS_QUERY:
-            c = color_point(colliders, g, x_end, wp.min(reach, PARTICLE_BAND * g.dx), side)
+            c = query_color(colliders, color, g, x_end, side, wp.min(reach, PARTICLE_BAND * g.dx))
             if c.body < 0 and reach < PARTICLE_BAND * g.dx:
                 c = color_point(colliders, g, x_end, PARTICLE_BAND * g.dx, side)
     return x_end, v_end, c

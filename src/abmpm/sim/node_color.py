@@ -23,15 +23,20 @@ from the nodes at the cost of a few grid lookups:
   no node sees can make it wrong by at most the tolerance. The crossing test
   (``g2p.advect``) allows for the tolerance, so the guarantee that no particle changes
   sides does not rest on the plane: a particle that might reach a surface within its
-  step still casts its ray. Anything else (rims, edges, curved or moving surfaces
-  seen at an angle, particles close to a surface) asks the BVH.
+  step still casts its ray.
+* **Faces.** Where no plane vouches (curved glass, creases), the nearest point to the
+  particle of the three nodes' closest triangles bounds its distance from above;
+  within NODE_COLOR_TOL of the lower bound it is taken, on static colliders away from
+  rims and only where no stencil node could be separated from the particle
+  (``stencil_facing``), so that CPIC's test keeps every node whatever the color.
+  Anything else (rims, moving colliders, particles close to a surface) asks the BVH.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-from .colliders import NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node
+from .colliders import NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node, color_point
 from .grid import GridSpec, nearest_node_coords, node_index, node_position
 from .stencil import stencil_base
 
@@ -106,21 +111,66 @@ def stencil_facing(f: ColorField, g: GridSpec, x: wp.vec3):
     tangent plane: then CPIC's test (``colliders.compatible``) keeps every node, whatever
     x's own closest point, and the color only bounds x's distance."""
     base = stencil_base(g, x)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                c = base + wp.vec3i(i, j, k)
-                n = node_index(g, c[0], c[1], c[2])
-                if n >= 0:
-                    if f.body[n] >= 0:
-                        if f.dist[n] < ON_NODE * g.dx or behind_node(f, n, node_position(g, c), x):
-                            return False
+    for t in range(27):  # one loop, not unrolled: 27 copies of its body made every G2P slower
+        c = base + wp.vec3i(t // 9, (t // 3) % 3, t % 3)
+        n = node_index(g, c[0], c[1], c[2])
+        if n >= 0:
+            if f.body[n] >= 0:
+                if f.dist[n] < ON_NODE * g.dx or behind_node(f, n, node_position(g, c), x):
+                    return False
     return True
 
 
 @wp.func(inline=True)
-def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: wp.vec3, hint: wp.vec3,
-                     remembered: bool):
+def color_from_faces(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: wp.vec3, side: wp.vec3):
+    """The color of x from the closest faces of its nodes (the nearest node and those 1
+    and 2 cells out along ``side``) where no plane vouches for it (curved surfaces,
+    creases); else ``body`` NEEDS_QUERY."""
+    c = Color()
+    c.body = NEEDS_QUERY
+    step = g.dx * wp.normalize(side)
+    lb = float(FAR_BOUND)
+    best = int(-1)
+    best_d = float(PARTICLE_BAND) * g.dx
+    best_x = wp.vec3(0.0)
+    for k in range(3):
+        n, b = node_ball(f, g, x, nearest_node_coords(g, x + float(k) * step))
+        lb = wp.max(lb, b)
+        if n >= 0:
+            if f.face[n] >= 0:
+                # a point of the surface: its distance bounds x's from above
+                q = face_point(colliders, f.face[n], x)
+                dq = wp.length(x - q)
+                if dq < best_d:
+                    best_d = dq
+                    best = f.face[n]
+                    best_x = q
+    # within the tolerance of the balls' lower bound it is x's closest point or off by at
+    # most the tolerance; unless a rim is within 2 best_d of that face (x's closest point
+    # may then lie on the rim, |rim - x| <= best_d, where x's side is not the face's: a
+    # hole, a slit), and only where CPIC's test cannot tell the difference (stencil_facing)
+    if best >= 0 and lb >= NODE_COLOR_MIN * g.dx and best_d - lb <= NODE_COLOR_TOL * g.dx \
+            and colliders.face_clear[best] > 2.0 * best_d and stencil_facing(f, g, x):
+        c.surface_point = best_x
+        c.surface_side = (x - best_x) / best_d
+        c.body = colliders.face_body[best]
+    return c
+
+
+@wp.func
+def query_color(colliders: ColliderArrays, f: ColorField, g: GridSpec, x: wp.vec3, side: wp.vec3, bound: float):
+    """The color of x where no node's plane vouches for it: from the nodes' closest faces
+    (``color_from_faces``), else the BVH's closest point within ``bound``. One call,
+    not inlined: G2P declares an inlined function's temporaries for every particle,
+    and most particles never come here."""
+    c = color_from_faces(f, g, colliders, x, side)
+    if c.body == NEEDS_QUERY:
+        c = color_point(colliders, g, x, bound, side)
+    return c
+
+
+@wp.func(inline=True)
+def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, remembered: bool):
     """The color of x read from the nodes (module docstring), where they vouch for it;
     else ``body`` NEEDS_QUERY (ask the BVH). ``hint``: the side x had, away from the
     surface, when ``remembered``; else the nearest node's direction is used. ``body``
@@ -140,13 +190,10 @@ def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
     lo = wp.vec3(1.0)  # per-axis bounds of the directions of the nodes whose balls hold x
     hi = wp.vec3(-1.0)
     flat = int(1)  # every such node's closest point has a plane around it (a rim distance)
-    faces = wp.vec3i(-1)  # the closest faces of the three nodes: candidates for x's own
     for k in range(3):
         node = nearest_node_coords(g, x + float(k) * step)
         n, b = node_ball(f, g, x, node)
         lb = wp.max(lb, b)
-        if n >= 0:
-            faces[k] = f.face[n]
         if n >= 0 and b > 0.0 and f.body[n] >= 0:
             # x lies in the node's ball, so on its side
             if f.rim[n] <= 0.0:
@@ -173,27 +220,4 @@ def color_from_nodes(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
             c.surface_side = nrm
             c.body = f.body[plane]
             c.flat = 1  # the plane's normal
-            return c
-    # the nodes' closest faces: the nearest of their points to x is a point of the
-    # surface, so its distance bounds x's from above; within the tolerance of the lower
-    # bound it is x's closest point or off by at most the tolerance (curved surfaces,
-    # creases, moving colliders: no plane needed)
-    best = int(-1)
-    best_d = float(PARTICLE_BAND) * g.dx
-    best_x = wp.vec3(0.0)
-    for k in range(3):
-        if faces[k] >= 0:
-            q = face_point(colliders, faces[k], x)
-            dq = wp.length(x - q)
-            if dq < best_d:
-                best_d = dq
-                best = faces[k]
-                best_x = q
-    # ... unless a rim is within 2 best_d of that face: x's closest point may then lie on
-    # the rim (|rim - x| <= best_d), where x's side is not the face's (a hole, a slit)
-    if best >= 0 and best_d - lb <= NODE_COLOR_TOL * g.dx and colliders.face_clear[best] > 2.0 * best_d \
-            and stencil_facing(f, g, x):
-        c.surface_point = best_x
-        c.surface_side = (x - best_x) / best_d
-        c.body = colliders.face_body[best]
     return c
