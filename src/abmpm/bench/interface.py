@@ -103,6 +103,35 @@ def _spread(d: np.ndarray) -> float:
     return float(np.percentile(d, 99) - np.percentile(d, 1))
 
 
+def depth_J_gap(x: np.ndarray, J: np.ndarray, dx: float, b: int) -> float:
+    """The issue's measure of the interface in the tank: the largest difference, over
+    depth bins a fine cell thick (away from the floor and the surface), between the
+    mean J within one coarse cell of the interface and at the same depth more than
+    three coarse cells from it."""
+    d = np.abs(x[:, 0] - TANK_W / 2)
+    near, far = d < dx, d > 3 * dx
+    edges = np.arange(2 * dx / b, TANK_DEPTH - dx / b, dx / b)
+    gap = 0.0
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        at = (x[:, 1] >= lo) & (x[:, 1] < hi)
+        if (near & at).sum() > 3 and (far & at).sum() > 3:
+            gap = max(gap, abs(float(J[near & at].mean() - J[far & at].mean())))
+    return gap
+
+
+def surface_range(x: np.ndarray, spacing: np.ndarray, dx: float) -> float:
+    """How far from flat the free surface is: over columns one coarse cell wide, the
+    range of the top particle's height plus half its own sampling spacing (the surface
+    a particle layer stands for)."""
+    tops = []
+    for lo in np.arange(0.0, TANK_W - 1e-9, dx):
+        m = np.flatnonzero((x[:, 0] >= lo) & (x[:, 0] < lo + dx))
+        if len(m):
+            k = m[np.argmax(x[m, 1])]
+            tops.append(x[k, 1] + spacing[k] / 2)
+    return float(np.ptp(tops))
+
+
 def run_tank(seconds: float, device: str, b: int = 2) -> dict:
     """The tank at rest after ``seconds``, refinement factor ``b``: the spread of
     J - J_hydrostatic (1st to 99th percentile, away from the surface and the floor)
@@ -121,7 +150,9 @@ def run_tank(seconds: float, device: str, b: int = 2) -> dict:
         fine = inner & (p.level == 1)  # finest: every particle is level 1
         res[mode] = {"J_spread": _spread(d[fine]),
                      "interface_J_spread": _spread(d[inner & (np.abs(p.x[:, 0] - TANK_W / 2) < dx)]),
-                     "fastest": float(np.linalg.norm(p.v, axis=1).max()), "steps": sim.steps}
+                     "fastest": float(np.linalg.norm(p.v, axis=1).max()), "steps": sim.steps,
+                     "depth_J_gap": depth_J_gap(p.x, p.J, dx, b),
+                     "surface_range": surface_range(p.x, np.where(p.level == 1, dx / (2 * b), dx / 2), dx)}
     a, f = res["adaptive"], res["finest"]
     return {**res, "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
             "interface_J_ratio": round(a["interface_J_spread"] / f["interface_J_spread"], 3),
@@ -179,7 +210,10 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
         r = results[f"tank at rest, b = {b}"] = run_tank(0.3, device, b)
         print(f"tank at rest, interface through the water, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
               f"finest's, at the interface {r['interface_J_ratio']}x, fastest particle {r['fastest_ratio']}x "
-              f"finest's, steps {r['steps_ratio']}x", flush=True)
+              f"finest's, steps {r['steps_ratio']}x; J at the interface against the same depth far from it "
+              f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
+              f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {0.025 / b:.4f}; finest "
+              f"{r['finest']['surface_range']:.4f})", flush=True)
     for b in (2, 3):
         r = results[f"free bar, b = {b}"] = run_free_bar(0.4, device, b)
         print(f"free jelly bar across the interface, b = {b}: largest total momentum / one half's "
