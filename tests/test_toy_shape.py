@@ -86,7 +86,7 @@ CHECK = textwrap.dedent(
 
 
 def test_a_new_collider_shape_is_one_file_and_one_registry_line(tmp_path, registry_copy):
-    registry_copy.register("geometry/collider_shapes", "frame", TOY, last="paddle")
+    registry_copy.register("geometry/collider_shapes", "frame", TOY, last="perforated_plate")
     scene = tmp_path / "toy.toml"
     scene.write_text(SCENE)
     bad = []

@@ -29,6 +29,7 @@ import math
 import manifold3d
 import numpy as np
 import trimesh
+from shapely.geometry import Polygon, box
 
 from abmpm.geometry.arguments import non_negative, positive, vec3
 from abmpm.geometry.glyphs import extrude, panel_polygons, triangulate_polygon
@@ -221,6 +222,30 @@ def letter_panel(
         else:
             parts.append(trimesh.Trimesh(np.column_stack([v2, np.zeros(len(v2))]), f, process=False))
     mesh = _mesh(*_concat_arrays(parts))
+    return place(mesh, center, rotation_deg)
+
+
+HOLE_SEGMENTS = 32  # a round hole is a regular polygon of this many sides
+
+
+def perforated_plate(size=(1.0, 1.0), hole_diameter=0.1, holes=1, center=(0.0, 0.0, 0.0),
+                     rotation_deg=(0.0, 0.0, 0.0)):
+    """A zero-thickness ``w x d`` plate in the xz-plane (normal +y before rotation) with
+    ``holes`` round holes of ``hole_diameter`` evenly spaced along x on its centre line
+    (each a regular HOLE_SEGMENTS-gon inscribed in the circle)."""
+    w, d = (positive(s, "perforated_plate size") for s in np.broadcast_to(np.asarray(size, dtype=float), (2,)))
+    dia = positive(hole_diameter, "perforated_plate hole_diameter")
+    n = int(holes)
+    if n < 1 or dia >= min(w / n, d):
+        raise ValueError(f"perforated_plate: {n} holes of diameter {dia} do not fit in a {w} x {d} plate")
+    pitch = w / n
+    t = 2 * np.pi * np.arange(HOLE_SEGMENTS) / HOLE_SEGMENTS
+    rings = [np.column_stack([-w / 2 + pitch * (k + 0.5) + dia / 2 * np.cos(t), dia / 2 * np.sin(t)])
+             for k in range(n)]
+    v2, f = triangulate_polygon(Polygon(box(-w / 2, -d / 2, w / 2, d / 2).exterior.coords,
+                                        [r[::-1] for r in rings]))
+    # plane coordinates (x, z) -> (x, 0, -z): counter-clockwise in the xz-view keeps +y
+    mesh = _mesh(np.column_stack([v2[:, 0], np.zeros(len(v2)), -v2[:, 1]]), f)
     return place(mesh, center, rotation_deg)
 
 
@@ -426,6 +451,7 @@ __all__ = [
     "hourglass",
     "letter_panel",
     "paddle",
+    "perforated_plate",
     "sheet",
     "thin_box",
 ]

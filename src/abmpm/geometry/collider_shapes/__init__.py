@@ -58,7 +58,7 @@ class ColliderShape:
 
 
 # The registered shapes: modules of this package, each with a ``SHAPE``.
-MODULES = ("sheet", "thin_box", "blade", "crossed_plates", "letter_panel", "hourglass", "funnel", "paddle")
+MODULES = ("sheet", "thin_box", "blade", "crossed_plates", "letter_panel", "hourglass", "funnel", "paddle", "perforated_plate")
 REGISTRY: dict[str, ColliderShape] = {
     s.name: s for s in (importlib.import_module(f".{m}", __name__).SHAPE for m in MODULES)
 }
