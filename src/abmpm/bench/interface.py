@@ -36,6 +36,19 @@ RHO, G, K = 1000.0, 9.81, 4.0e4
 TANK_W, TANK_DEPTH, TANK_Z = 0.8, 0.25, 0.2
 
 
+# the plate cases: the box (x and z extent, m), the plate's height at its centre (m)
+PLATE_W, PLATE_Z, PLATE_Y = 0.4, 0.16, 0.2
+
+
+def water_over_plate(mode: str, b: int, dx: float, colliders: list) -> sm.Scene:
+    """Water falling 0.04 m onto the plate made of ``colliders`` (slip walls, K = 2e4 Pa)."""
+    return sm.Scene(
+        simulation=sm.SimulationSettings(domain_max=(PLATE_W, 0.5, PLATE_Z), dx=dx, fps=10, max_dt=2e-3,
+                                         walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
+        materials=[sm.Fluid(name="water", bulk_modulus=2e4)],
+        bodies=[sm.BoxBody(material="water", min=(0, 0.24, 0), max=(PLATE_W, 0.44, PLATE_Z))], colliders=colliders)
+
+
 def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04,
                     tilt: float = 0.0) -> tuple[sm.Scene, float]:
     """Water falling 0.04 m onto a zero-thickness plate that spans the box; its only
@@ -43,27 +56,19 @@ def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04,
     (degrees, up to 50) turns the plate about the x axis, across the slit's length: the
     slit and the plate are then on no grid plane. Returns the scene and the plate's
     height at its centre."""
-    W, Z, yp = 0.4, 0.16, 0.2
-    half = (W - slit_cells * dx) / 2
-    plates = [sm.SheetCollider(size=(half, Z + 0.1), center=(c, yp, Z / 2), rotation=(tilt, 0.0, 0.0))
-              for c in (half / 2, W - half / 2)]
-    scene = sm.Scene(
-        simulation=sm.SimulationSettings(domain_max=(W, 0.5, Z), dx=dx, fps=10, max_dt=2e-3,
-                                         walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
-        materials=[sm.Fluid(name="water", bulk_modulus=2e4)],
-        bodies=[sm.BoxBody(material="water", min=(0, 0.24, 0), max=(W, 0.44, Z))], colliders=plates)
-    return scene, yp
+    half = (PLATE_W - slit_cells * dx) / 2
+    plates = [sm.SheetCollider(size=(half, PLATE_Z + 0.1), center=(c, PLATE_Y, PLATE_Z / 2),
+                               rotation=(tilt, 0.0, 0.0)) for c in (half / 2, PLATE_W - half / 2)]
+    return water_over_plate(mode, b, dx, plates), PLATE_Y
 
 
 def plate_with_hole(mode: str, hole_cells: float, b: int, dx: float = 0.04,
                     tilt: float = 0.0) -> tuple[sm.Scene, float]:
-    """The water and box of ``plate_with_slit``, the plate spanning the box with one round
-    hole ``hole_cells`` coarse cells across at its centre as the only way down."""
-    scene, yp = plate_with_slit(mode, 1.0, b, dx, tilt)
-    W, Z = scene.simulation.domain_max[0], scene.simulation.domain_max[2]
-    plate = SHAPE_SCHEMAS["perforated_plate"](size=(W + 0.1, Z + 0.1), hole_diameter=hole_cells * dx,
-                                       center=(W / 2, yp, Z / 2), rotation=(tilt, 0.0, 0.0))
-    return scene.model_copy(update={"colliders": [plate]}), yp
+    """The case of ``plate_with_slit`` with the plate spanning the box and one round hole
+    ``hole_cells`` coarse cells across at its centre as the only way down."""
+    plate = SHAPE_SCHEMAS["perforated_plate"](size=(PLATE_W + 0.1, PLATE_Z + 0.1), hole_diameter=hole_cells * dx,
+                                              center=(PLATE_W / 2, PLATE_Y, PLATE_Z / 2), rotation=(tilt, 0.0, 0.0))
+    return water_over_plate(mode, b, dx, [plate]), PLATE_Y
 
 
 def tank_at_rest(mode: str, dx: float = 0.05, b: int = 2) -> sm.Scene:
@@ -172,7 +177,7 @@ def run_tank(seconds: float, device: str, b: int = 2) -> dict:
                      "depth_J_gap": depth_J_gap(p.x, p.J, dx, b),
                      "surface_range": surface_range(p.x, np.where(p.level == 1, dx / (2 * b), dx / 2), dx)}
     a, f = res["adaptive"], res["finest"]
-    return {**res, "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
+    return {**res, "half_fine_cell": dx / (2 * b), "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
             "interface_J_ratio": round(a["interface_J_spread"] / f["interface_J_spread"], 3),
             "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
 
@@ -216,28 +221,23 @@ def run_free_bar(seconds: float, device: str, b: int = 2) -> dict:
 def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results."""
     results = {}
-    for slit, b, seeds, tilt in SLITS:
-        name = f"slit {slit} cells, b = {b}" + (f", tilted {tilt:g} deg" if tilt else "")
-        r = results[name] = run_slit(slit, b, seconds, device, seeds, tilt)
+    passages = [(f"slit {w} cells, b = {b}" + (f", tilted {tilt:g} deg" if tilt else ""), w, b, seeds, tilt, False)
+                for w, b, seeds, tilt in SLITS] + [(f"round hole {w} cells, b = {b}", w, b, (0,), 0.0, True)
+                                                   for w, b in HOLES]
+    for name, w, b, seeds, tilt, hole in passages:
+        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole)
         print(f"{name}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
               flush=True)
-    for hole, b in HOLES:
-        name = f"round hole {hole} cells, b = {b}"
-        r = results[name] = run_slit(hole, b, seconds, device, hole=True)
-        print(f"{name}: mass through original {r['original']['through']:.4f}  "
-              f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
-              f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
-              f"(goal <= 1.05), wall {r['wall_ratio']}x (1 seed)", flush=True)
     for b in TANK_FACTORS:
         r = results[f"tank at rest, b = {b}"] = run_tank(0.3, device, b)
         print(f"tank at rest, interface through the water, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
               f"finest's, at the interface {r['interface_J_ratio']}x, fastest particle {r['fastest_ratio']}x "
               f"finest's, steps {r['steps_ratio']}x; J at the interface against the same depth far from it "
               f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
-              f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {0.025 / b:.4f}; finest "
+              f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
               f"{r['finest']['surface_range']:.4f})", flush=True)
     for b in (2, 3):
         r = results[f"free bar, b = {b}"] = run_free_bar(0.4, device, b)

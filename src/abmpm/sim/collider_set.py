@@ -94,23 +94,25 @@ class ColliderSet:
         self.arrays.mesh = self.mesh.id
         self.face_body_host = np.concatenate(fbody)
         self.arrays.face_body = wp.array(self.face_body_host, dtype=wp.int32, device=device)
-        # the rims and creases, for node_color.py's planes; static colliders only (a
-        # moving collider's field is rebuilt every substep: no time for a second query)
-        self.rims = rim_mesh(self.rest, self.faces, device) if self.static else None
+        # the rims and creases, for node_color.py's planes and faces; static colliders
+        # only (a moving collider's field is rebuilt every substep: no time for a second
+        # query, and its rims move with it)
+        boundary, creases = rim_edges(self.rest, self.faces) if self.static else (None, None)
+        self.rims = edge_mesh(self.rest, np.concatenate([boundary, creases]), device) if self.static else None
         self.arrays.rims = self.rims.id if self.rims is not None else wp.uint64(0)
-        self.arrays.face_clear = self._face_clearance(device)
+        self.arrays.face_clear = self._face_clearance(boundary, device)
         self.time = None
         self._region = {}  # grid id -> node box last colored
         self.set_time(0.0)
 
-    def _face_clearance(self, device) -> wp.array:
-        """Per triangle, a lower bound of its distance to the nearest rim (boundary edge)
-        of any collider, for node_color.py's nearby faces; static colliders only (zero,
-        never enough, where a collider moves: the rims move with it)."""
+    def _face_clearance(self, boundary: np.ndarray | None, device) -> wp.array:
+        """Per triangle, a lower bound of its distance to the nearest of the ``boundary``
+        edges (rims) of any collider, for node_color.py's nearby faces; zero (never
+        enough) where the colliders move (``boundary`` None)."""
         n = len(self.faces)
-        if not self.static:
+        if boundary is None:
             return wp.zeros(n, dtype=float, device=device)
-        rims = rim_mesh(self.rest, self.faces, device, creases=False)
+        rims = edge_mesh(self.rest, boundary, device)
         if rims is None:  # closed surfaces: no rim anywhere
             return wp.full(n, FAR, dtype=float, device=device)
         clear = wp.zeros(n, dtype=float, device=device)
@@ -219,23 +221,20 @@ class ColliderSet:
                         label=f"color {grid.name}", min_range=NODE_RANGE)
 
 
-def boundary_edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """The edges of one triangle only (rims of sheets and holes), as vertex pairs."""
+def rim_edges(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The edges of a triangle mesh where it stops being one plane, as vertex pairs:
+    boundary edges (one triangle: rims of sheets and holes) and creases (two triangles
+    meeting at more than CREASE_DEGREES)."""
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    return mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)].reshape(-1, 2)
+    boundary = mesh.edges_sorted[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
+    creases = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(CREASE_DEGREES)]
+    return boundary.reshape(-1, 2), creases.reshape(-1, 2)
 
 
-def rim_mesh(vertices: np.ndarray, faces: np.ndarray, device, creases: bool = True) -> wp.Mesh | None:
-    """The edges of a triangle mesh where it stops being one plane, as a BVH mesh of
-    sliver triangles (a, b and b moved off the edge by 1e-4 of its length: Warp's
-    query skips degenerate triangles): boundary edges (one triangle: rims of sheets
-    and holes) and, with ``creases``, creases (two triangles meeting at more than
-    CREASE_DEGREES). None when there is none."""
-    edges = boundary_edges(vertices, faces)
-    if creases:
-        mesh = trimesh.Trimesh(vertices, faces, process=False)
-        edges = np.concatenate([edges, mesh.face_adjacency_edges[mesh.face_adjacency_angles
-                                                                 > np.radians(CREASE_DEGREES)].reshape(-1, 2)])
+def edge_mesh(vertices: np.ndarray, edges: np.ndarray, device) -> wp.Mesh | None:
+    """Edges (vertex pairs) as a BVH mesh of sliver triangles (a, b and b moved off the
+    edge by 1e-4 of its length: Warp's query skips degenerate triangles). None when
+    there is none."""
     if len(edges) == 0:
         return None
     a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]

@@ -366,14 +366,19 @@ def color_node_range(first: int, colliders: ColliderArrays, g: GridSpec, f: Colo
     color_node(colliders, g, f, n, node_coords(g, n))
 
 
+@wp.func(inline=True)
+def face_corners(mesh: wp.uint64, face: int):
+    # the three corners of triangle ``face`` of a Warp mesh
+    return wp.mesh_get_point(mesh, 3 * face), wp.mesh_get_point(mesh, 3 * face + 1), \
+        wp.mesh_get_point(mesh, 3 * face + 2)
+
+
 @wp.kernel
 def face_clearance(mesh: wp.uint64, rims: wp.uint64, clear: wp.array(dtype=float)):
     # the triangle lies in the ball of radius r around its centroid, so it is at least
     # the centroid's distance to the rims less r from every rim
     t = wp.tid()
-    a = wp.mesh_get_point(mesh, 3 * t)
-    b = wp.mesh_get_point(mesh, 3 * t + 1)
-    c = wp.mesh_get_point(mesh, 3 * t + 2)
+    a, b, c = face_corners(mesh, t)
     m = (a + b + c) / 3.0
     r = wp.max(wp.length(a - m), wp.max(wp.length(b - m), wp.length(c - m)))
     clear[t] = 0.0

@@ -36,7 +36,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from .colliders import NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node, color_point
+from .colliders import (NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node, color_point,
+                        face_corners)
 from .grid import GridSpec, nearest_node_coords, node_index, node_position
 from .stencil import stencil_base
 
@@ -100,9 +101,8 @@ def closest_on_triangle(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
 @wp.func(inline=True)
 def face_point(colliders: ColliderArrays, face: int, x: wp.vec3):
     # the point of collider triangle ``face`` closest to x
-    return closest_on_triangle(x, wp.mesh_get_point(colliders.mesh, 3 * face),
-                               wp.mesh_get_point(colliders.mesh, 3 * face + 1),
-                               wp.mesh_get_point(colliders.mesh, 3 * face + 2))
+    a, b, c = face_corners(colliders.mesh, face)
+    return closest_on_triangle(x, a, b, c)
 
 
 @wp.func
