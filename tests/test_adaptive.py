@@ -66,6 +66,43 @@ def test_split_conserves_mass_and_momentum(n, b, seed):
     assert len(np.unique(fam)) == n and np.all(np.bincount(fam) [np.unique(fam)] == ns)
 
 
+@pytest.mark.parametrize("b", [2, 3, 4])
+def test_split_children_start_inside_the_domain_walls(b):
+    # The coarse grid lets a particle sink a few tenths of a coarse cell into a wall,
+    # the fine grid only that part of a fine cell. A parent split there used to put
+    # its outermost children up to ~0.5 fine cells past the wall, where the fine wall
+    # nodes squeezed them (J 0.60 in a dam break at b = 3; finest's least 0.71). Each
+    # family now moves rigidly inside, its outermost child WALL_GAP child spacings from
+    # the wall (as close as the jittered fine lattice comes); the children's
+    # velocities, hence mass and momentum, stay those of the split; a family clear of
+    # the walls does not move.
+    from abmpm.sim.refine import WALL_GAP
+    h = 0.05  # the parent lattice spacing at dx = 0.1, 8 particles per cell
+    x = np.array([[0.5, -0.01, 0.5], [0.5, 0.5, 1.004], [0.003, 0.02, 0.5], [0.5, 0.5, 0.5]], np.float32)
+    rng = np.random.default_rng(3)
+    v = rng.normal(0, 1.0, (4, 3)).astype(np.float32)
+    C = rng.normal(0, 2.0, (4, 3, 3)).astype(np.float32)
+    F = np.repeat(np.eye(3, dtype=np.float32)[None], 4, axis=0)
+    F[2] = [[0.9, 0.1, 0.0], [0.0, 1.1, 0.0], [0.0, 0.0, 1.0]]  # a sheared parent
+    mass = np.full(4, 1000.0 * h**3, np.float32)
+    out = split_everything(x, v, C, F, mass, b)
+    # the outermost child's offset per axis is (1/2 - 1/2b) h sum_j |F_kj|, the gap
+    # WALL_GAP h / b sum_j |F_kj|: at least the smallest row sum (0.9 + 0.1) times it
+    gap = WALL_GAP * h / b * 1.0
+    assert out["x"].min() >= gap * (1 - 1e-4) and out["x"].max() <= 1.0 - gap * (1 - 1e-4)
+    P0 = (mass[:, None].astype(np.float64) * v).sum(axis=0)
+    P = (out["mass"][:, None].astype(np.float64) * out["v"]).sum(axis=0)
+    assert np.abs(P - P0).max() <= 1e-5 * (mass * np.linalg.norm(v, axis=1)).sum()
+    for k in range(4):  # each family keeps its lattice: the centre moved, no child alone
+        kids = out["x"][out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]]
+        assert len(kids) == b**3
+        rel = kids - kids.mean(axis=0)
+        expect = (np.stack(np.meshgrid(*[np.arange(b)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / b - 0.5
+        assert np.allclose(np.sort((rel @ np.linalg.inv(F[k]).T / h).ravel()), np.sort(expect.ravel()), atol=1e-4)
+    interior = out["x"][np.linalg.norm(out["x"] - x[3], axis=1) < h]
+    assert np.allclose(interior.mean(axis=0), x[3], atol=1e-6)
+
+
 # --------------------------------------------------------------------------- modes
 
 

@@ -6,7 +6,7 @@ finest"). Tolerances are stated inline."""
 import numpy as np
 import pytest
 
-from abmpm.bench.interface import SEEDS4, run_slit, run_tank, tank_at_rest
+from abmpm.bench.interface import SEEDS4, run_dam_break, run_slit, run_tank, tank_at_rest
 from abmpm.geometry.sampling import JITTER, lattice_spacing
 from abmpm.inputs import sample_scene
 
@@ -84,3 +84,21 @@ def test_slit_outside_the_paper_drains_like_finest(slit_cells):
     # Steps: the issue's goal is 5% above finest, not reached on every case yet
     # (measured 0.90 and 0.82 with one seed): 1.25 guards against a compressed band.
     assert r["steps_ratio"] < 1.25, r
+
+
+@pytest.mark.slow
+def test_dam_break_into_a_refined_box_takes_finests_steps():
+    # Coarse water runs along the floor into a refinement box at the far wall and hits
+    # the wall there (the issue's "fine and coarse fluid mixed against a wall"). The
+    # issue's bound: adaptive takes at most 5% more steps than finest (no compressed
+    # band; the step follows the most compressed fluid). Measured 1.036 (541 / 522);
+    # 1.067 before split children were kept inside the domain walls, when the
+    # children of coarse parents sunk into the floor started squeezed into it.
+    r = run_dam_break(0.5, "cpu", b=2)
+    assert r["steps_ratio"] <= 1.05, r
+    # the front reaches the box later than finest's (the coarse part is original
+    # mode's) but crosses it in about finest's time: within 10% (measured 1.06)
+    assert 0.9 <= r["crossing_ratio"] <= 1.1, r
+    # the run-up at the wall lies between original's and finest's (measured 0.316,
+    # 0.384, 0.486 m): refining the last 0.24 m cannot undo the coarse run-in
+    assert r["original"]["runup"] < r["adaptive"]["runup"] < r["finest"]["runup"], r
