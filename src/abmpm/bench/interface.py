@@ -313,8 +313,8 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
         r = results[f"dam break, b = {b}"] = run_dam_break(0.5, device, b)
         print(f"dam break into a refined box at the far wall, b = {b}: the front's time across the box "
               f"adaptive / finest {r['crossing_ratio']}, run-up at the wall {r['runup_ratio']} (goal 0.9-1.1; "
-              f"original {r['original']['crossing']}, {r['original']['runup']:.3f} m; finest "
-              f"{r['finest']['crossing']}, {r['finest']['runup']:.3f} m); steps {r['steps_ratio']}x finest's "
+              f"original {r['original']['crossing']:.3f} s, {r['original']['runup']:.3f} m; finest "
+              f"{r['finest']['crossing']:.3f} s, {r['finest']['runup']:.3f} m); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05)", flush=True)
     for b in (2, 3):
         r = results[f"free bar, b = {b}"] = run_free_bar(0.4, device, b)
