@@ -77,13 +77,19 @@ def plate_with_hole(mode: str, hole_cells: float, b: int, dx: float = 0.04,
     return water_over_plate(mode, b, dx, [plate]), y
 
 
-def tank_at_rest(mode: str, dx: float = 0.05, b: int = 2) -> sm.Scene:
+# the refinement box of the tank with a horizontal interface: the bottom 0.1 m
+TANK_LAYER = 0.1
+
+
+def tank_at_rest(mode: str, dx: float = 0.05, b: int = 2, layered: bool = False) -> sm.Scene:
     """A tank of water whose right half is a refinement box: the level interface runs
-    through the water. Start it with ``hydrostatic_J`` for a state at rest."""
+    through the water. ``layered``: the box is the bottom TANK_LAYER instead, coarse water
+    resting on refined water. Start it with ``hydrostatic_J`` for a state at rest."""
+    box = ((0.0, 0.0, 0.0), (TANK_W, TANK_LAYER, TANK_Z)) if layered else ((TANK_W / 2, 0.0, 0.0), (TANK_W, 0.4, TANK_Z))
     return sm.Scene(
         simulation=sm.SimulationSettings(
             domain_max=(TANK_W, 0.4, TANK_Z), dx=dx, fps=20, walls={"type": "slip"},
-            refinement={"mode": mode, "factor": b, "boxes": [((TANK_W / 2, 0.0, 0.0), (TANK_W, 0.4, TANK_Z))]}),
+            refinement={"mode": mode, "factor": b, "boxes": [box]}),
         materials=[sm.Fluid(name="water", density=RHO, bulk_modulus=K)],
         bodies=[sm.BoxBody(material="water", min=(0, 0, 0), max=(TANK_W, TANK_DEPTH, TANK_Z))])
 
@@ -185,6 +191,25 @@ def run_tank(seconds: float, device: str, b: int = 2) -> dict:
     a, f = res["adaptive"], res["finest"]
     return {**res, "half_fine_cell": dx / (2 * b), "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
             "interface_J_ratio": round(a["interface_J_spread"] / f["interface_J_spread"], 3),
+            "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
+
+
+def run_layered_tank(seconds: float, device: str, b: int = 2) -> dict:
+    """The tank with coarse water resting on a refined bottom layer after ``seconds``:
+    J - J_hydrostatic of the level-1 particles (1st to 99th percentile) against finest's
+    at the same heights, the fastest particle and the steps against finest's."""
+    res = {}
+    for mode in ("adaptive", "finest"):
+        sim = Simulation(tank_at_rest(mode, 0.05, b, layered=True), device=device)
+        sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
+        sim.advance(seconds=seconds)
+        p = sim.particles()
+        d = p.J - hydrostatic_J(p.x[:, 1])
+        layer = (p.x[:, 1] < TANK_LAYER) & (p.level == 1)  # finest: the same heights
+        res[mode] = {"J_spread": _spread(d[layer]), "fastest": float(np.linalg.norm(p.v, axis=1).max()),
+                     "steps": sim.steps}
+    a, f = res["adaptive"], res["finest"]
+    return {**res, "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
             "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
 
 
@@ -309,6 +334,11 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
               f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
               f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
               f"{r['finest']['surface_range']:.4f})", flush=True)
+    for b in (2, 4):
+        r = results[f"layered tank at rest, b = {b}"] = run_layered_tank(0.3, device, b)
+        print(f"tank at rest, coarse water on a refined bottom layer, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
+              f"finest's at the same heights, fastest particle {r['fastest_ratio']}x finest's, steps "
+              f"{r['steps_ratio']}x", flush=True)
     for b in (2, 3):
         r = results[f"dam break, b = {b}"] = run_dam_break(0.5, device, b)
         print(f"dam break into a refined box at the far wall, b = {b}: the front's time across the box "
