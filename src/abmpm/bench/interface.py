@@ -334,21 +334,26 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
               f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
               f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
               f"{r['finest']['surface_range']:.4f})", flush=True)
-    for b in (2, 4):
-        r = results[f"layered tank at rest, b = {b}"] = run_layered_tank(0.3, device, b)
-        print(f"tank at rest, coarse water on a refined bottom layer, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
-              f"finest's at the same heights, fastest particle {r['fastest_ratio']}x finest's, steps "
-              f"{r['steps_ratio']}x", flush=True)
-    for b in (2, 3):
-        r = results[f"dam break, b = {b}"] = run_dam_break(0.5, device, b)
-        print(f"dam break into a refined box at the far wall, b = {b}: the front's time across the box "
-              f"adaptive / finest {r['crossing_ratio']}, run-up at the wall {r['runup_ratio']} (goal 0.9-1.1; "
-              f"original {r['original']['crossing']:.3f} s, {r['original']['runup']:.3f} m; finest "
-              f"{r['finest']['crossing']:.3f} s, {r['finest']['runup']:.3f} m); steps {r['steps_ratio']}x finest's "
-              f"(goal <= 1.05)", flush=True)
-    for b in (2, 3):
-        r = results[f"free bar, b = {b}"] = run_free_bar(0.4, device, b)
-        print(f"free jelly bar across the interface, b = {b}: largest total momentum / one half's "
-              f"(0 exactly; finest's is float round-off) {r['drift']}; kinetic energy at 0.4 s adaptive / finest "
-              f"{r['ke_ratio']}", flush=True)
+    def layered(r):
+        return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
+                f"{r['fastest_ratio']}x finest's, steps {r['steps_ratio']}x")
+
+    def dam(r):
+        return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
+                f"{r['runup_ratio']} (goal 0.9-1.1; original {r['original']['crossing']:.3f} s, "
+                f"{r['original']['runup']:.3f} m; finest {r['finest']['crossing']:.3f} s, {r['finest']['runup']:.3f} m); "
+                f"steps {r['steps_ratio']}x finest's (goal <= 1.05)")
+
+    def bar(r):
+        return (f"largest total momentum / one half's (0 exactly; finest's is float round-off) {r['drift']}; "
+                f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
+
+    for key, title, run, seconds, factors, say in (
+            ("layered tank at rest", "tank at rest, coarse water on a refined bottom layer", run_layered_tank, 0.3,
+             (2, 4), layered),
+            ("dam break", "dam break into a refined box at the far wall", run_dam_break, 0.5, (2, 3), dam),
+            ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3), bar)):
+        for b in factors:
+            r = results[f"{key}, b = {b}"] = run(seconds, device, b)
+            print(f"{title}, b = {b}: {say(r)}", flush=True)
     return results
