@@ -31,6 +31,9 @@ SLITS = [(0.5, 2, SEEDS4, 0.0, 0.0), (1.0, 2, SEEDS4, 0.0, 0.0), (0.75, 3, (0,),
 # round holes (diameter in coarse cells, b, lift), one seed: finest's 1-cell hole at b = 3
 # reads 0.0176 and 0.0178 on seeds 0 and 1
 HOLES = [(1.0, 3, 0.0), (1.5, 2, 0.0), (1.5, 3, 0.0), (1.0, 3, 0.25), (1.5, 3, 0.25)]
+# the 1-cell slit at b = 3 with other fluids than the soft water (K = 2e4 Pa) of the rest:
+# (name, Fluid parameters)
+FLUIDS = [("stiff water", {"bulk_modulus": 2e5}), ("viscous fluid", {"bulk_modulus": 2e4, "viscosity": 1.0})]
 MODES = ("original", "adaptive", "finest")
 TANK_FACTORS = (2, 3, 4)
 
@@ -100,17 +103,20 @@ def hydrostatic_J(y: np.ndarray) -> np.ndarray:
 
 
 def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
-             tilt: float = 0.0, hole: bool = False, lift: float = 0.0) -> dict:
+             tilt: float = 0.0, hole: bool = False, lift: float = 0.0, fluid: dict | None = None) -> dict:
     """Mass through (below the plate's plane), steps and wall seconds of one slit case
     in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
     mass through in ``through_seeds``); ``tilt`` and ``lift`` as in ``plate_with_slit``; ``hole``:
-    a round hole ``slit_cells`` across instead of the slit (``plate_with_hole``)."""
+    a round hole ``slit_cells`` across instead of the slit (``plate_with_hole``); ``fluid``:
+    the water's ``Fluid`` parameters instead of K = 2e4 Pa."""
     out = {}
     for mode in MODES:
         runs = []
         for seed in seeds:
             scene, yp = (plate_with_hole if hole else plate_with_slit)(mode, slit_cells, b, tilt=tilt, lift=lift)
             scene.simulation.seed = seed
+            if fluid:
+                scene.materials = [sm.Fluid(name="water", **fluid)]
             sim = Simulation(scene, device=device)
             up = sim.colliders.body_meshes()[0].face_normals[0]
             up = up if up[1] > 0 else -up
@@ -319,8 +325,9 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
     passages = [(f"slit {w} cells, b = {b}" + (f", tilted {tilt:g} deg" if tilt else "") + lifted(lift), w, b, seeds,
                  tilt, False, lift) for w, b, seeds, tilt, lift in SLITS] + [
         (f"round hole {w} cells, b = {b}" + lifted(lift), w, b, (0,), 0.0, True, lift) for w, b, lift in HOLES]
-    for name, w, b, seeds, tilt, hole, lift in passages:
-        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift)
+    passages += [(f"slit 1.0 cells, b = 3, {name}", 1.0, 3, (0,), 0.0, False, 0.0, fluid) for name, fluid in FLUIDS]
+    for name, w, b, seeds, tilt, hole, lift, *fluid in passages:
+        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift, *fluid)
         print(f"{name}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
