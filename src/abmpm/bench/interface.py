@@ -344,6 +344,24 @@ def run_free_bar(seconds: float, device: str, b: int = 2) -> dict:
             "ke_ratio": round(res["adaptive"]["kinetic_energy"] / res["finest"]["kinetic_energy"], 3)}
 
 
+def _summary(key: str, r: dict) -> str:
+    """One line of the suite's report for a case of ``run_interface_suite``."""
+    ratios = f"steps {r['steps_ratio']}x finest's" if "steps_ratio" in r else ""
+    if key == "jelly pressed through":
+        return (f"mass through adaptive {r['adaptive']['through']:.4f}, finest {r['finest']['through']:.4f}, original "
+                f"{r['original']['through']:.4f} -> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); {ratios}")
+    if key == "layered tank at rest":
+        return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
+                f"{r['fastest_ratio']}x finest's, {ratios}")
+    if key == "dam break":
+        o, f = r["original"], r["finest"]
+        return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
+                f"{r['runup_ratio']} (goal 0.9-1.1; original {o['crossing']:.3f} s, {o['runup']:.3f} m; finest "
+                f"{f['crossing']:.3f} s, {f['runup']:.3f} m); {ratios} (goal <= 1.05)")
+    return (f"largest total momentum / one half's (0 exactly; finest's is float round-off) {r['drift']}; "
+            f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
+
+
 def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results."""
     results = {}
@@ -369,33 +387,14 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
               f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
               f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
               f"{r['finest']['surface_range']:.4f})", flush=True)
-    def layered(r):
-        return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
-                f"{r['fastest_ratio']}x finest's, steps {r['steps_ratio']}x")
 
-    def dam(r):
-        return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
-                f"{r['runup_ratio']} (goal 0.9-1.1; original {r['original']['crossing']:.3f} s, "
-                f"{r['original']['runup']:.3f} m; finest {r['finest']['crossing']:.3f} s, {r['finest']['runup']:.3f} m); "
-                f"steps {r['steps_ratio']}x finest's (goal <= 1.05)")
-
-    def bar(r):
-        return (f"largest total momentum / one half's (0 exactly; finest's is float round-off) {r['drift']}; "
-                f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
-
-    def piston(r):
-        return (f"mass through adaptive {r['adaptive']['through']:.4f}, finest {r['finest']['through']:.4f}, original "
-                f"{r['original']['through']:.4f} -> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps "
-                f"{r['steps_ratio']}x finest's")
-
-    for key, title, run, seconds, factors, say in (
-            ("jelly pressed through", "jelly pressed through the 1.5-cell slit by a piston", run_piston, 0.3, (3,),
-             piston),
+    for key, title, run, seconds, factors in (
+            ("jelly pressed through", "jelly pressed through the 1.5-cell slit by a piston", run_piston, 0.3, (3,)),
             ("layered tank at rest", "tank at rest, coarse water on a refined bottom layer", run_layered_tank, 0.3,
-             (2, 4), layered),
-            ("dam break", "dam break into a refined box at the far wall", run_dam_break, 0.5, (2, 3), dam),
-            ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3), bar)):
+             (2, 4)),
+            ("dam break", "dam break into a refined box at the far wall", run_dam_break, 0.5, (2, 3)),
+            ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3))):
         for b in factors:
             r = results[f"{key}, b = {b}"] = run(seconds, device, b)
-            print(f"{title}, b = {b}: {say(r)}", flush=True)
+            print(f"{title}, b = {b}: {_summary(key, r)}", flush=True)
     return results
