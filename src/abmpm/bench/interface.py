@@ -40,6 +40,7 @@ TANK_FACTORS = (2, 3, 4)
 # the tank at rest: water density, gravity, a soft bulk modulus; tank size (m)
 RHO, G, K = 1000.0, 9.81, 4.0e4
 TANK_W, TANK_DEPTH, TANK_Z = 0.8, 0.25, 0.2
+TANK_DX = 0.05  # the tank's coarse spacing
 
 
 # the plate cases: the box (x and z extent, m), the plate's height at its centre (m)
@@ -108,11 +109,10 @@ def run_piston(seconds: float, device: str, b: int = 3, slit_cells: float = 1.5)
         p = sim.particles()
         res[mode] = {"through": mass_beyond_plane(p.x, p.mass, (PLATE_W / 2, yp, PLATE_Z / 2), (0.0, -1.0, 0.0)),
                      "steps": sim.steps}
-    a, f = res["adaptive"], res["finest"]
-    return {**res, "through_ratio": round(a["through"] / f["through"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
+    return {**res, **_against_finest(res, through_ratio="through", steps_ratio="steps")}
 
 
-def tank_at_rest(mode: str, dx: float = 0.05, b: int = 2, layered: bool = False) -> sm.Scene:
+def tank_at_rest(mode: str, dx: float = TANK_DX, b: int = 2, layered: bool = False) -> sm.Scene:
     """A tank of water whose right half is a refinement box: the level interface runs
     through the water. ``layered``: the box is the bottom TANK_LAYER instead, coarse water
     resting on refined water. Start it with ``hydrostatic_J`` for a state at rest."""
@@ -159,11 +159,14 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
         out[mode] = {"through": round(float(through), 5), "through_seeds": [round(float(r[0]), 5) for r in runs],
                      "steps": float(steps), "wall_s": round(float(wall), 2), "timed_steps": float(timed),
                      "particles": float(count)}
-    a, f = out["adaptive"], out["finest"]
-    out["through_ratio"] = round(a["through"] / f["through"], 3) if f["through"] > 0 else None
-    out["steps_ratio"] = round(a["steps"] / f["steps"], 3)
-    out["wall_ratio"] = round(a["wall_s"] / f["wall_s"], 3)
-    return out
+    return {**out, **_against_finest(out, through_ratio="through", steps_ratio="steps", wall_ratio="wall_s")}
+
+
+def _against_finest(res: dict, **keys: str) -> dict:
+    """``name: adaptive / finest`` of each ``name=key`` of ``res``'s runs, to 3 decimals
+    (None where finest's is 0 or either is missing)."""
+    a, f = res["adaptive"], res["finest"]
+    return {name: round(a[k] / f[k], 3) if a[k] is not None and f[k] else None for name, k in keys.items()}
 
 
 def _spread(d: np.ndarray) -> float:
@@ -201,31 +204,35 @@ def surface_range(x: np.ndarray, spacing: np.ndarray, dx: float) -> float:
     return float(np.ptp(tops))
 
 
+def _settled_tank(mode: str, b: int, seconds: float, device: str, layered: bool = False):
+    """``tank_at_rest`` started from hydrostatic J and run for ``seconds``: its particles,
+    their J - J_hydrostatic, and the fastest particle's speed and the steps."""
+    sim = Simulation(tank_at_rest(mode, TANK_DX, b, layered), device=device)
+    sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
+    sim.advance(seconds=seconds)
+    p = sim.particles()
+    return p, p.J - hydrostatic_J(p.x[:, 1]), {"fastest": float(np.linalg.norm(p.v, axis=1).max()), "steps": sim.steps}
+
+
 def run_tank(seconds: float, device: str, b: int = 2) -> dict:
     """The tank at rest after ``seconds``, refinement factor ``b``: the spread of
     J - J_hydrostatic (1st to 99th percentile, away from the surface and the floor)
     of the level-1 particles and of every particle within one coarse cell of the level
     interface, each against finest's (every particle; those at the same places),
     the fastest particle against finest's, and the steps."""
-    dx = 0.05
+    dx = TANK_DX
     res = {}
     for mode in ("adaptive", "finest"):
-        sim = Simulation(tank_at_rest(mode, dx, b), device=device)
-        sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
-        sim.advance(seconds=seconds)
-        p = sim.particles()
+        p, d, res[mode] = _settled_tank(mode, b, seconds, device)
         inner = (p.x[:, 1] < TANK_DEPTH - 2 * dx) & (p.x[:, 1] > 2 * dx)
-        d = p.J - hydrostatic_J(p.x[:, 1])
         fine = inner & (p.level == 1)  # finest: every particle is level 1
-        res[mode] = {"J_spread": _spread(d[fine]),
-                     "interface_J_spread": _spread(d[inner & (np.abs(p.x[:, 0] - TANK_W / 2) < dx)]),
-                     "fastest": float(np.linalg.norm(p.v, axis=1).max()), "steps": sim.steps,
-                     "depth_J_gap": depth_J_gap(p.x, p.J, dx, b),
-                     "surface_range": surface_range(p.x, np.where(p.level == 1, dx / (2 * b), dx / 2), dx)}
-    a, f = res["adaptive"], res["finest"]
-    return {**res, "half_fine_cell": dx / (2 * b), "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
-            "interface_J_ratio": round(a["interface_J_spread"] / f["interface_J_spread"], 3),
-            "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
+        res[mode].update(J_spread=_spread(d[fine]),
+                         interface_J_spread=_spread(d[inner & (np.abs(p.x[:, 0] - TANK_W / 2) < dx)]),
+                         depth_J_gap=depth_J_gap(p.x, p.J, dx, b),
+                         surface_range=surface_range(p.x, np.where(p.level == 1, dx / (2 * b), dx / 2), dx))
+    return {**res, "half_fine_cell": dx / (2 * b),
+            **_against_finest(res, J_spread_ratio="J_spread", interface_J_ratio="interface_J_spread",
+                              fastest_ratio="fastest", steps_ratio="steps")}
 
 
 def run_layered_tank(seconds: float, device: str, b: int = 2) -> dict:
@@ -234,17 +241,9 @@ def run_layered_tank(seconds: float, device: str, b: int = 2) -> dict:
     at the same heights, the fastest particle and the steps against finest's."""
     res = {}
     for mode in ("adaptive", "finest"):
-        sim = Simulation(tank_at_rest(mode, 0.05, b, layered=True), device=device)
-        sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
-        sim.advance(seconds=seconds)
-        p = sim.particles()
-        d = p.J - hydrostatic_J(p.x[:, 1])
-        layer = (p.x[:, 1] < TANK_LAYER) & (p.level == 1)  # finest: the same heights
-        res[mode] = {"J_spread": _spread(d[layer]), "fastest": float(np.linalg.norm(p.v, axis=1).max()),
-                     "steps": sim.steps}
-    a, f = res["adaptive"], res["finest"]
-    return {**res, "J_spread_ratio": round(a["J_spread"] / f["J_spread"], 3),
-            "fastest_ratio": round(a["fastest"] / f["fastest"], 3), "steps_ratio": round(a["steps"] / f["steps"], 3)}
+        p, d, res[mode] = _settled_tank(mode, b, seconds, device, layered=True)
+        res[mode]["J_spread"] = _spread(d[(p.x[:, 1] < TANK_LAYER) & (p.level == 1)])  # finest: the same heights
+    return {**res, **_against_finest(res, J_spread_ratio="J_spread", fastest_ratio="fastest", steps_ratio="steps")}
 
 
 # the dam break: box (m), the water column, the refinement box at the far wall (x from)
@@ -302,10 +301,7 @@ def run_dam_break(seconds: float, device: str, b: int = 2) -> dict:
                 runup = max(runup, _weighted_quantile(p.x[wall, 1], m[wall], 0.995))
         crossing = t_wall - t_box if t_wall is not None and t_box is not None else None
         res[mode] = {"t_box": t_box, "t_wall": t_wall, "crossing": crossing, "runup": runup, "steps": sim.steps}
-    a, f = res["adaptive"], res["finest"]
-    ratio = round(a["crossing"] / f["crossing"], 3) if a["crossing"] and f["crossing"] else None
-    return {**res, "crossing_ratio": ratio, "runup_ratio": round(a["runup"] / f["runup"], 3),
-            "steps_ratio": round(a["steps"] / f["steps"], 3)}
+    return {**res, **_against_finest(res, crossing_ratio="crossing", runup_ratio="runup", steps_ratio="steps")}
 
 
 def free_bar(mode: str, b: int, dx: float = 0.05) -> sm.Scene:
@@ -341,23 +337,30 @@ def run_free_bar(seconds: float, device: str, b: int = 2) -> dict:
         ke = 0.5 * float((p.mass * (p.v.astype(np.float64) ** 2).sum(1)).sum())
         res[mode] = {"momentum_drift": drift, "kinetic_energy": ke}
     return {**res, "drift": {m: float(f"{res[m]['momentum_drift']:.3g}") for m in MODES},
-            "ke_ratio": round(res["adaptive"]["kinetic_energy"] / res["finest"]["kinetic_energy"], 3)}
+            **_against_finest(res, ke_ratio="kinetic_energy")}
 
 
 def _summary(key: str, r: dict) -> str:
     """One line of the suite's report for a case of ``run_interface_suite``."""
-    ratios = f"steps {r['steps_ratio']}x finest's" if "steps_ratio" in r else ""
+    steps = f"steps {r['steps_ratio']}x finest's" if "steps_ratio" in r else ""
+    if key == "tank at rest":
+        a, f = r["adaptive"], r["finest"]
+        return (f"level-1 J spread {r['J_spread_ratio']}x finest's, at the interface {r['interface_J_ratio']}x, "
+                f"fastest particle {r['fastest_ratio']}x finest's, {steps}; J at the interface against the same depth "
+                f"far from it {a['depth_J_gap']:.4f} (goal 0.01; finest {f['depth_J_gap']:.4f}), surface range "
+                f"{a['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
+                f"{f['surface_range']:.4f})")
     if key == "jelly pressed through":
         return (f"mass through adaptive {r['adaptive']['through']:.4f}, finest {r['finest']['through']:.4f}, original "
-                f"{r['original']['through']:.4f} -> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); {ratios}")
+                f"{r['original']['through']:.4f} -> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); {steps}")
     if key == "layered tank at rest":
         return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
-                f"{r['fastest_ratio']}x finest's, {ratios}")
+                f"{r['fastest_ratio']}x finest's, {steps}")
     if key == "dam break":
         o, f = r["original"], r["finest"]
         return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
                 f"{r['runup_ratio']} (goal 0.9-1.1; original {o['crossing']:.3f} s, {o['runup']:.3f} m; finest "
-                f"{f['crossing']:.3f} s, {f['runup']:.3f} m); {ratios} (goal <= 1.05)")
+                f"{f['crossing']:.3f} s, {f['runup']:.3f} m); {steps} (goal <= 1.05)")
     return (f"largest total momentum / one half's (0 exactly; finest's is float round-off) {r['drift']}; "
             f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
 
@@ -365,6 +368,7 @@ def _summary(key: str, r: dict) -> str:
 def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results."""
     results = {}
+
     def lifted(lift: float) -> str:
         return f", {lift:g} cells off the node plane" if lift else ""
 
@@ -379,22 +383,14 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
               flush=True)
-    for b in TANK_FACTORS:
-        r = results[f"tank at rest, b = {b}"] = run_tank(0.3, device, b)
-        print(f"tank at rest, interface through the water, b = {b}: level-1 J spread {r['J_spread_ratio']}x "
-              f"finest's, at the interface {r['interface_J_ratio']}x, fastest particle {r['fastest_ratio']}x "
-              f"finest's, steps {r['steps_ratio']}x; J at the interface against the same depth far from it "
-              f"{r['adaptive']['depth_J_gap']:.4f} (goal 0.01; finest {r['finest']['depth_J_gap']:.4f}), surface "
-              f"range {r['adaptive']['surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
-              f"{r['finest']['surface_range']:.4f})", flush=True)
-
-    for key, title, run, seconds, factors in (
+    for key, title, run, span, factors in (
+            ("tank at rest", "tank at rest, interface through the water", run_tank, 0.3, TANK_FACTORS),
             ("jelly pressed through", "jelly pressed through the 1.5-cell slit by a piston", run_piston, 0.3, (3,)),
             ("layered tank at rest", "tank at rest, coarse water on a refined bottom layer", run_layered_tank, 0.3,
              (2, 4)),
             ("dam break", "dam break into a refined box at the far wall", run_dam_break, 0.5, (2, 3)),
             ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3))):
         for b in factors:
-            r = results[f"{key}, b = {b}"] = run(seconds, device, b)
+            r = results[f"{key}, b = {b}"] = run(span, device, b)
             print(f"{title}, b = {b}: {_summary(key, r)}", flush=True)
     return results
