@@ -8,6 +8,7 @@ import warp as wp
 
 import abmpm
 from abmpm.bench.interface import TANK_DEPTH, tank_at_rest
+from abmpm.sim.time_levels import SLOW_STEP_COST, cut_for_levels
 from abmpm.simulation import Simulation
 
 STIFF = 4.0e5  # Pa: stiff enough that the fine CFL step (not max_dt) sets dt, so k = 2 at b = 2
@@ -34,6 +35,31 @@ def flight(time_steps: str) -> abmpm.Scene:
 
 def momentum(p) -> np.ndarray:
     return (p.mass[:, None].astype(np.float64) * p.v).sum(axis=0)
+
+
+def test_the_frame_cut_is_the_cheapest_that_keeps_both_cfl_steps():
+    # a frame of 0.05 s, the fast set's CFL step 0.565 ms, the slow set's 1 ms (max_dt
+    # binds it: 1.77 substeps, so the fewest substeps give it k = 1)
+    rest, dt_max, slow_dt = 0.05, 0.565e-3, 1.0e-3
+    fewest = 89  # ceil(0.05 / 0.565e-3)
+    assert cut_for_levels(rest, dt_max, slow_dt, 4, 0, 1000.0, 100) == (fewest, 1)  # nothing slow: as before
+    # many slow particles beside a small fast part: 100 substeps of 0.5 ms, S steps 1 ms
+    # (cost a frame: 100 (1000 + 1.4 / 2 1e5 + node work) against 89 (1000 + 1e5))
+    assert cut_for_levels(rest, dt_max, slow_dt, 4, 100_000, 1000.0, 100) == (100, 2)
+    # a fast part that costs more than S saves: the fewest substeps
+    assert cut_for_levels(rest, dt_max, slow_dt, 4, 100_000, 2.0e6, 100) == (fewest, 1)
+    # any cut: no substep longer than dt_max, no step of S longer than its CFL step (at k = 1
+    # S steps with the fast set, whose signal then holds S's speed), and never more costly than the fewest substeps with k = 1 (what the global step costs)
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        dt_max, ratio = rng.uniform(1e-4, 1e-2), rng.uniform(0.5, 6.0)
+        n_slow, fast, nodes = int(rng.integers(0, 10**5)), rng.uniform(0, 1e5), int(rng.integers(1, 10**5))
+        n, k = cut_for_levels(rest, dt_max, ratio * dt_max, 4, n_slow, fast, nodes)
+        assert rest / n <= dt_max * (1 + 1e-9) and 1 <= k <= min(4, n)
+        assert k == 1 or k * rest / n <= ratio * dt_max * (1 + 1e-9)
+        global_cost = max(1, np.ceil(rest / dt_max - 1e-9)) * (fast + n_slow)
+        slow = min(n_slow, n_slow * SLOW_STEP_COST / k + nodes * (0.032 / k + 0.008)) if k > 1 else n_slow
+        assert n * (fast + slow) <= global_cost * (1 + 1e-9)
 
 
 def test_free_flight_across_the_temporal_interface_conserves_momentum():

@@ -25,6 +25,7 @@ from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
+from .sim.time_levels import SLOW_STEP_COST, cut_for_levels, slow_steps_apart
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
@@ -36,11 +37,6 @@ LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_sid
 # How far the sound speed of compressed fluid may rise before the time step follows
 # it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
 STIFFENING_SLACK = 2.0
-# What a time step per level costs and saves, in units of one level-0 particle's substep
-# (~190 ns on the 2-core CPU; paper panel and sloshing tank profiles, docs/benchmarks.md):
-# a slow particle's step (scatter and gather) 1.4; per coarse node, clearing and summing
-# the slow set's node arrays 0.032 a step and its share in the grid update 0.008 a substep.
-SLOW_STEP_COST, SLOW_NODE_STEP_COST, SLOW_NODE_SUBSTEP_COST = 1.4, 0.032, 0.008
 
 @dataclass(frozen=True)
 class Particles:
@@ -148,25 +144,23 @@ class Simulation:
 
     def _split_rest(self, rest: float, dt_max: float) -> None:
         # the rest of the frame in equal substeps no longer than dt_max
-        self._left = max(1, math.ceil(rest / dt_max - 1e-9))
-        self.dt = rest / self._left
         solver = self.solver
-        if solver.slow is None:
-            return
-        # A time step per level (sim/time_levels.py): the slow set takes one step per k
-        # substeps of the fast set, as many as fit in its own CFL step (coarse spacing,
-        # its own speed; k <= the refinement period). The substeps stay those of the
-        # global step: the fast set never takes more steps than without the slow set.
-        if self._signal_all:  # the slow set stepped with everyone: its speed is in the last signal
-            self._slow_signal = self._signal
-        k = min(SEGMENT_MAX, math.floor(self._slow_dt() / self.dt * (1.0 + 1e-9)), self._left)
-        # where its step cannot be longer (max_dt binds, or too few substeps left) the sorts
-        # stop choosing it: on a GPU that choice is a host round trip per sort
-        solver.choose_slow = k >= 2
-        # it pays where the slow particles' saving outweighs the grid-sized work it adds
-        saving = solver.slow_count * (k - SLOW_STEP_COST)
-        solver.block = k if saving > math.prod(solver.grid.dims) * (SLOW_NODE_STEP_COST + k * SLOW_NODE_SUBSTEP_COST) \
-            else 1
+        self._left = max(1, math.ceil(rest / dt_max - 1e-9))
+        if solver.slow is not None:
+            # A time step per level (sim/time_levels.py): the slow set takes one step per k
+            # substeps of the fast set, as many as fit in its own CFL step (coarse spacing,
+            # its own speed; k <= the refinement period), the substeps shortened where
+            # that is cheaper (``cut_for_levels``)
+            if self._signal_all:  # the slow set stepped with everyone: its speed is in the last signal
+                self._slow_signal = self._signal
+            slow_dt, nodes = self._slow_dt(), math.prod(solver.grid.dims)
+            # the sorts choose the slow set only where its step could pay (on a GPU that
+            # choice is a host round trip per sort): a step longer than SLOW_STEP_COST substeps
+            solver.choose_slow = slow_dt * self._left > SLOW_STEP_COST * rest
+            self._left, k = cut_for_levels(rest, dt_max, slow_dt, SEGMENT_MAX,
+                                           solver.slow_count, solver.fast_cost(), nodes)
+            solver.block = k if slow_steps_apart(solver.slow_count, nodes, k) else 1
+        self.dt = rest / self._left
 
     def _checked_dt(self, signal: tuple[float, float]) -> float:
         """The CFL step for the last substep's signal (fastest particle, fluid

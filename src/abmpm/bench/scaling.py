@@ -3,7 +3,10 @@
 domain: a time step per level").
 
 A tank of water sloshing towards its right wall, 1, 2, 4 and 8 times 0.32 m long, with
-the same refinement box (0.16 m wide) at its right end in every length. Each length
+the same refined region at its right end in every length: a refinement box 0.16 m wide
+(``region = "box"``), or a wall across the tank 0.08 m from its right end with one small
+round hole below the water line, which the feature criterion refines around
+(``region = "hole"``: a small region, whose share of the particles falls with length). Each length
 runs in original, adaptive (one global time step), adaptive with a time step per level
 (``time_steps = "per_level"``, sim/time_levels.py) and finest mode, one after the
 other in the same process;
@@ -22,6 +25,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from ..scene import model as sm
+from ..scene.colliders import SHAPE_SCHEMAS
 from ..simulation import Simulation
 
 LENGTHS = (1, 2, 4, 8)  # tank length in units of BASE
@@ -29,30 +33,41 @@ BASE, BOX = 0.32, 0.16  # m: the shortest tank; the refinement box's width at th
 HEIGHT, DEPTH, WIDTH = 0.24, 0.1, 0.08  # m: the tank's height, the water's depth, the tank's depth (z)
 DX, FACTOR = 0.02, 2  # coarse spacing, refinement factor b
 SLOSH = 0.5  # m/s: the water's initial speed towards the right wall
+HOLE, HOLE_Y = 0.03, 0.05  # m: the hole's diameter (1.5 coarse cells) and height (mid-depth)
+REGIONS = ("box", "hole")
 MODES = ("original", "adaptive", "per_level", "finest")  # per_level: adaptive, a time step per level
 LABELS = {"original": "original", "adaptive": "adaptive, global step", "per_level": "adaptive, step per level",
           "finest": "finest"}
 
 
-def sloshing_tank(length: int, mode: str = "adaptive") -> sm.Scene:
-    """The tank ``length`` x BASE long, its water moving right at SLOSH, the refinement
-    box over its last BOX metres; ``mode`` one of MODES."""
+def sloshing_tank(length: int, mode: str = "adaptive", region: str = "box") -> sm.Scene:
+    """The tank ``length`` x BASE long, its water moving right at SLOSH, the refined
+    region at its right end (``region`` one of REGIONS); ``mode`` one of MODES."""
     L = BASE * length
     steps = "per_level" if mode == "per_level" else "global"
     mode = "adaptive" if mode == "per_level" else mode
+    refinement = {"mode": mode, "factor": FACTOR, "time_steps": steps}
+    water, colliders = (0.0, 0.0, 0.0), []
+    if region == "box":
+        refinement["boxes"] = [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))]
+    else:  # a wall across the tank (normal x) with one hole, the water on its left
+        x = L - BOX / 2
+        colliders = [SHAPE_SCHEMAS["perforated_plate"](size=(2 * HEIGHT, WIDTH + 0.1), hole_diameter=HOLE,
+                                                        center=(x, HOLE_Y, WIDTH / 2), rotation=(0.0, 0.0, 90.0))]
+        water = (x - DX / 2, 0.0, 0.0)
     return sm.Scene(
-        name=f"scaling_tank_{length}x",
-        simulation=sm.SimulationSettings(
-            domain_max=(L, HEIGHT, WIDTH), dx=DX, fps=20, walls={"type": "slip"},
-            refinement={"mode": mode, "factor": FACTOR, "boxes": [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))],
-                        "time_steps": steps}),
+        name=f"scaling_tank_{region}_{length}x",
+        simulation=sm.SimulationSettings(domain_max=(L, HEIGHT, WIDTH), dx=DX, fps=20, walls={"type": "slip"},
+                                         refinement=refinement),
         materials=[sm.Fluid(name="water", bulk_modulus=4.0e4)],
-        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(L, DEPTH, WIDTH), velocity=(SLOSH, 0.0, 0.0))],
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(water[0] or L, DEPTH, WIDTH),
+                           velocity=(SLOSH, 0.0, 0.0))],
+        colliders=colliders,
     )
 
 
-def time_tank(length: int, mode: str, seconds: float, device: str) -> dict:
-    sim = Simulation(sloshing_tank(length, mode), device=device)
+def time_tank(length: int, mode: str, seconds: float, device: str, region: str = "box") -> dict:
+    sim = Simulation(sloshing_tank(length, mode, region), device=device)
     sim.step()  # compile and warm up outside the timing
     t_sim, steps0 = sim.time, sim.steps
     t0 = time.perf_counter()
@@ -63,19 +78,21 @@ def time_tank(length: int, mode: str, seconds: float, device: str) -> dict:
             "particles": sim.particle_count, "slow": sim.solver.slow_count}
 
 
-def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path | None = None) -> list[dict]:
-    """Every length in every mode, printed as it finishes; with ``plot`` a PNG of the
-    cost against the tank's length."""
+def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path | None = None,
+                regions=REGIONS) -> list[dict]:
+    """Every region and length in every mode, printed as it finishes; with ``plot`` a PNG
+    of the cost against the tank's length."""
     rows = []
-    for length in lengths:
-        row = {"length_m": round(BASE * length, 3), **{m: time_tank(length, m, seconds, device) for m in MODES}}
+    for region, length in ((r, n) for r in regions for n in lengths):
+        row = {"region": region, "length_m": round(BASE * length, 3),
+               **{m: time_tank(length, m, seconds, device, region) for m in MODES}}
         o, a, pl, f = (row[m]["wall_per_sim_s"] for m in MODES)
         row["adaptive_over_original"] = round(a / o, 3)
         row["finest_over_adaptive"] = round(f / a, 3)
         row["per_level_over_original"] = round(pl / o, 3)
         row["finest_over_per_level"] = round(f / pl, 3)
         rows.append(row)
-        print(f"tank {row['length_m']} m: wall s per simulated s original {o}, adaptive {a}, per level {pl}, "
+        print(f"tank {row['length_m']} m, {region}: wall s per simulated s original {o}, adaptive {a}, per level {pl}, "
               f"finest {f} (particles {' / '.join(str(row[m]['particles']) for m in MODES)}; steps per simulated s "
               f"{' / '.join(str(row[m]['steps_per_sim_s']) for m in MODES)}; slow particles at the end "
               f"{row['per_level']['slow']}) -> adaptive / original {row['adaptive_over_original']}, per level / "
@@ -87,19 +104,26 @@ def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path 
 
 
 def plot_scaling(rows: list[dict], path: Path) -> None:
-    fig = Figure(figsize=(5.5, 4.0))  # no pyplot: a file, never a window
-    ax = fig.subplots()
-    x = [r["length_m"] for r in rows]
-    for mode in MODES:
-        ax.plot(x, [r[mode]["wall_per_sim_s"] for r in rows], "o-", label=LABELS[mode])
-    ax.set_xscale("log", base=2)
-    ax.set_yscale("log")
-    ax.set_xticks(x, [f"{v:g}" for v in x], minor=False)
-    ax.minorticks_off()
-    ax.set_xlabel(f"tank length (m); refined box {BOX} m wide at its end")
-    ax.set_ylabel("wall s per simulated s")
-    ax.set_title("Cost against the size of the scene")
-    ax.legend(loc="upper left", fontsize="small")
+    """One panel per region: wall seconds per simulated second of each mode against the
+    tank's length."""
+    regions = list(dict.fromkeys(r.get("region", "box") for r in rows))
+    fig = Figure(figsize=(5.0 * len(regions), 4.0))  # no pyplot: a file, never a window
+    axes = fig.subplots(1, len(regions), squeeze=False)[0]
+    titles = {"box": f"refined box {BOX} m wide at the end", "hole": f"a hole {HOLE * 100:g} cm across near the end"}
+    for ax, region in zip(axes, regions):
+        mine = [r for r in rows if r.get("region", "box") == region]
+        x = [r["length_m"] for r in mine]
+        for mode in MODES:
+            ax.plot(x, [r[mode]["wall_per_sim_s"] for r in mine], "o-", label=LABELS[mode])
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_xticks(x, [f"{v:g}" for v in x], minor=False)
+        ax.minorticks_off()
+        ax.set_xlabel("tank length (m)")
+        ax.set_ylabel("wall s per simulated s")
+        ax.set_title(titles.get(region, region), fontsize="medium")
+        ax.legend(loc="upper left", fontsize="small")
+    fig.suptitle("Cost against the size of the scene")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -57,12 +57,11 @@ from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off
 
 wp.set_module_options({"enable_backward": False})
 
-# The longest segment (substeps between two host points): segments end at every
-# refinement step, in every mode, so that their lengths repeat and graphs are reused.
+# The longest segment (substeps between host points): segments end at every refinement step,
+# in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
 
-# the P2G passes (sim/p2g.py): which particles each visits (a level, or None for
-# all) and how a profile names it
+# the P2G passes (sim/p2g.py): which particles each visits (a level, None: all) and their profile names
 _P2G_LEVEL = {"dense": None, "level0": 0, "overlap": 1, "sparse": None}
 _P2G_LABEL = {"dense": "", "level0": " (level 0)", "overlap": " (level 1, overlap)", "sparse": ""}
 
@@ -106,11 +105,9 @@ class MPMSolver:
         self._dt_host = 0.0
         self._signals = Signals(SEGMENT_MAX, self.launcher.threads, device)  # the CFL signal of each substep
         self.signal = self._signals.array
-        # Where each level's particles lie: level (None: every level) -> ranges
-        # (first, count). After a sort by (level, cell) each level of adaptive mode
-        # is one contiguous range and its transfers run over it alone: equal work per
-        # CPU thread, no pass over particles that would return at once. Checked at
-        # every host point; unsorted particles get one range over all.
+        # Where each level's particles lie: level (None: every level) -> ranges (first, count);
+        # after a sort by (level, cell) one range per level, whose transfers run over it alone
+        # (equal work per CPU thread). Checked at every host point; unsorted: one range over all.
         self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
@@ -129,8 +126,7 @@ class MPMSolver:
         self.slow = SlowSet(self.grid, self.launcher, device) if self.refiner and per_level else None
         self._no_slow = no_slow(device)
         self.slow_count = 0  # particles of the slow set, at the front of the storage (counted at each sort)
-        self.block = 1  # substeps per step of the slow set (set by the time stepping)
-        self.choose_slow = True  # whether a sort chooses the slow set (off while its step could not be longer)
+        self.block, self.choose_slow = 1, True  # the slow set's step in substeps; whether a sort chooses it
         self._kernels_loaded = False
         self._graphs = Graphs()  # captured segments (run_segment)
 
@@ -245,6 +241,10 @@ class MPMSolver:
         cap = self.slow.segment_cap(self.block, self.slow_due) if self.slow is not None else None
         return n if cap is None else min(n, cap)  # a segment ends with the slow set's step
 
+    def fast_cost(self) -> float:
+        """The fast set's cost a substep in level-0 particle substeps (sim/time_levels.py)."""
+        return time_levels.fast_substep_cost(self._ranges, self.slow_count)
+
     @property
     def slow_due(self) -> bool:
         """Whether the slow set's open step must end (``close_slow``) before the next segment."""
@@ -279,7 +279,6 @@ class MPMSolver:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
                 if self.slow.may_be_near():  # S chosen again
                     self.sort_by_cell(state)
-                    self._find_level_ranges(state)
                 self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models)
         self._dt.fill_(dt)
         self._dt_host = dt
@@ -498,3 +497,4 @@ class MPMSolver:
         self._sorted, n_slow = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
                                             self._sorted, near, first)  # an open slow step keeps its particles
         self.slow_count = n_slow if first == 0 else self.slow_count
+        self._find_level_ranges(state)  # fresh for the time stepping's cost rule (and the next segment)

@@ -40,6 +40,7 @@ S is open sorts the other particles only: S keeps its place in the storage.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import warp as wp
@@ -336,3 +337,48 @@ def split_off_slow(ranges: dict, n_slow: int) -> dict:
     n0 = level0[0][1]
     fast0 = [(n_slow, n0 - n_slow)]
     return {0: fast0, 1: level1, None: fast0 + level1, "slow": [(0, n_slow)]}
+
+
+# What a time step per level costs and saves, in units of one level-0 particle's substep
+# (~190 ns on the 2-core CPU; paper panel and sloshing tank profiles, docs/benchmarks.md):
+# a slow particle's step (scatter and gather) 1.4; per coarse node, clearing and summing
+# the slow set's node arrays 0.032 a step and its share in the grid update 0.008 a substep.
+SLOW_STEP_COST, SLOW_NODE_STEP_COST, SLOW_NODE_SUBSTEP_COST = 1.4, 0.032, 0.008
+# A level-1 particle's substep (fine P2G and G2P, the overlap scatter, the contact band),
+# in the same unit (docs/method.md, "A time step per level": the sloshing tank's profile)
+LEVEL1_SUBSTEP_COST = 3.0
+
+
+def slow_steps_apart(n_slow: int, nodes: int, k: int) -> bool:
+    """Whether S pays for stepping apart with ``k`` substeps a step: its particles'
+    saving outweighs the work the size of the coarse grid (``nodes``) it adds."""
+    return k >= 2 and n_slow * (k - SLOW_STEP_COST) > nodes * (SLOW_NODE_STEP_COST + k * SLOW_NODE_SUBSTEP_COST)
+
+
+def cut_for_levels(rest: float, dt_max: float, slow_dt: float, cap: int, n_slow: int, fast_cost: float,
+                   nodes: int) -> tuple[int, int]:
+    """The rest of a frame in equal substeps, and S's step in substeps (k): the cheapest
+    of the cuts into substeps no longer than ``dt_max`` that give S a step of 1 ... ``cap``
+    substeps no longer than ``slow_dt``. The first cut is the fewest substeps, with k as
+    many of them as fit in ``slow_dt``; the others shorten the substep to slow_dt / k, so
+    that F pays more substeps for S's fewer steps (``fast_cost``: F's cost a substep, in
+    level-0 particle substeps). Ties keep the fewest substeps. Returns (substeps, k)."""
+    fewest = max(1, math.ceil(rest / dt_max - 1e-9))
+    best = None
+    for want in range(1, max(1, cap) + 1):
+        n = fewest if want == 1 else max(fewest, math.ceil(rest * want / slow_dt - 1e-9))
+        k = max(1, min(cap, math.floor(slow_dt * n / rest * (1.0 + 1e-9)), n))
+        slow = n_slow * SLOW_STEP_COST / k + nodes * (SLOW_NODE_STEP_COST / k + SLOW_NODE_SUBSTEP_COST) \
+            if slow_steps_apart(n_slow, nodes, k) else n_slow
+        cost = n * (fast_cost + slow)
+        if best is None or cost < best[0] * (1.0 - 1e-9):
+            best = (cost, n, k)
+    return best[1], best[2]
+
+
+def fast_substep_cost(ranges: dict, n_slow: int) -> float:
+    """The fast set's cost a substep in level-0 particle substeps, from the level ranges
+    (``split_off_slow``'s) and the slow set's size: its level-0 particles at 1, its level-1
+    particles at LEVEL1_SUBSTEP_COST (unsorted particles count at every level)."""
+    count = lambda key: sum(c for _, c in ranges.get(key, ()))  # noqa: E731
+    return count(0) + count("slow") - n_slow + LEVEL1_SUBSTEP_COST * count(1)
