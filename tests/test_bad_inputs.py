@@ -279,6 +279,8 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "negative_collider_size": (col("size = [0.3, 0.3]", "size = [0.3, -0.3]"), ("colliders[0].size[1]", "> 0")),
     "inverted_refinement_box": (sub("boxes = []", "boxes = [[[0.3, 0.3, 0.3], [0.1, 0.1, 0.1]]]"),
                                 ("simulation.refinement.boxes", "min must not exceed max")),
+    "refinement_box_outside_the_domain": (sub("boxes = []", "boxes = [[[0.5, 0.1, 0.1], [0.9, 0.3, 0.3]]]"),
+                                          ("simulation.refinement.boxes[0]", "outside the domain on axis x")),
     "inverted_domain": (sub("domain_max = [0.4, 0.4, 0.4]", "domain_max = [0.4, -0.4, 0.4]"),
                         ("simulation.domain_max", "must exceed domain_min")),
     # ---- numbers too big (or too small) for the solver, or that break time stepping

@@ -159,6 +159,14 @@ class SimulationSettings(_Strict):
             raise ValueError(f"dx={self.dx} leaves fewer than 4 cells across the domain")
         if math.prod(c + 8 for c in cells) > 2.0e9:
             raise ValueError(f"dx={self.dx} makes a grid of more than 2e9 nodes")
+        for i, (lo, hi) in enumerate(self.refinement.boxes):
+            out = [a for a in range(3) if hi[a] <= self.domain_min[a] or lo[a] >= self.domain_max[a]]
+            if out:
+                a = out[0]
+                raise ValueError(
+                    f"refinement.boxes[{i}]: the box lies outside the domain on axis {'xyz'[a]} ({lo[a]:g} to "
+                    f"{hi[a]:g}, domain {self.domain_min[a]:g} to {self.domain_max[a]:g}): it would refine nothing"
+                )
         return self
 
 
