@@ -96,8 +96,7 @@ class MPMSolver:
         self._next_id = 0  # id of the next particle a split creates
         self._first_split_id = None  # ids from here on were made by splits (set by the first reserve_ids)
         self._steps = 0
-        # buffers of the substeps, (re)sized at host points only (_reserve)
-        self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # per-particle stress (two grids)
+        self._tau = wp.empty(1, dtype=wp.mat33, device=device)  # stress per particle (two grids); buffers: _reserve
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ  # coarse nodes reached by level-0 particles (adaptive mode)
         self._cmask = self._no_occ  # per-particle compatibility mask, P2G -> G2P (CPIC)
@@ -105,9 +104,8 @@ class MPMSolver:
         self._dt_host = 0.0
         self._signals = Signals(SEGMENT_MAX, self.launcher.threads, device)  # the CFL signal of each substep
         self.signal = self._signals.array
-        # Where each level's particles lie: level (None: every level) -> ranges (first, count);
-        # after a sort by (level, cell) one range per level, whose transfers run over it alone
-        # (equal work per CPU thread). Checked at every host point; unsorted: one range over all.
+        # Where each level's particles lie, level (None: all) -> [(first, count)]: one range per
+        # level once sorted (_find_level_ranges), whose transfers run over it alone.
         self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
@@ -115,8 +113,8 @@ class MPMSolver:
         self._substep = 0  # of which taken
         self._segment_start = 0  # step count at its start
         self._start = SegmentStart(device)  # the particles at the segment's start (rewind)
-        # Captured graphs (run_segment; moving colliders run eagerly). ``capture`` may be set on
-        # the CPU too (Warp >= 1.19 replays CPU graphs, on one thread): the tests do.
+        # Captured graphs (run_segment; moving colliders run eagerly); the tests set ``capture``
+        # on the CPU too (Warp >= 1.19 replays CPU graphs, on one thread).
         if config.cuda_graph and not self.launcher.device.is_cuda:
             warnings.warn("cuda_graph is ignored on the CPU: substeps run eagerly on all threads", stacklevel=2)
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
@@ -475,7 +473,7 @@ class MPMSolver:
         if n_split:
             self._next_id += n_split * self.refiner.b**3
             self.color_particles(state, min_id=first_child)  # only the children moved
-            self.sort_by_cell(state)  # the children joined at the end: each level contiguous again
+            self.sort_by_cell(state, keep_slow=True)  # the children joined at the end: each level contiguous again
         self._after_activation(self.refiner.activate(state, 0 if n_split else skip))
 
     def _after_activation(self, first_slot: int) -> None:
@@ -486,15 +484,17 @@ class MPMSolver:
 
     # ------------------------------------------------------------------ sorting
 
-    def sort_by_cell(self, state: ParticleState) -> None:
-        """Reorder particles by coarse cell so P2G/G2P touch memory coherently (on the
-        device); in adaptive mode by level first, so that each level is one range."""
-        near, first = None, self.slow_count if self.slow is not None and self.slow.open else 0
-        if self.slow is not None and not self.slow.open and self.choose_slow:  # the slow set chosen again
+    def sort_by_cell(self, state: ParticleState, keep_slow: bool = False) -> None:
+        """Reorder particles by coarse cell (P2G/G2P touch memory coherently), by level first
+        in adaptive mode; the slow set keeps its particles while its step is open, and with
+        ``keep_slow`` while its drift bound holds (after a split: only the rest is sorted)."""
+        keep = self.slow is not None and (self.slow.open or (keep_slow and not self.slow.may_be_near()))
+        near, first = None, self.slow_count if keep else 0
+        if self.slow is not None and not keep and self.choose_slow:  # the slow set chosen again
             near = self.slow.grow_near(state, self.refiner.region_cells, self.grid.color, self.colliders is not None,
                                        (0, state.count), SORT_HALO)
             self.slow.drift = 0.0
         self._sorted, n_slow = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
-                                            self._sorted, near, first)  # an open slow step keeps its particles
+                                            self._sorted, near, first)
         self.slow_count = n_slow if first == 0 else self.slow_count
         self._find_level_ranges(state)  # fresh for the time stepping's cost rule (and the next segment)
