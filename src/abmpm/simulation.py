@@ -329,7 +329,10 @@ class Simulation:
         if r.merge_margin:
             region = binary_dilation(region, iterations=r.merge_margin)
         cell = np.clip(((snap["x"] - self.solver.grid_origin) / self.dx).astype(int), 0, np.array(region.shape) - 1)
-        keep_fine = region[cell[:, 0], cell[:, 1], cell[:, 2]]
+        # and no family merges while a child touches a collider (it carries a color: within
+        # the particle band of a surface), where a coarse particle would stand a coarse
+        # cell's contact distance off it (a blade's faces, which the region leaves coarse)
+        keep_fine = region[cell[:, 0], cell[:, 1], cell[:, 2]] | (snap["surface_body"] >= 0)
         merged, n = merge_families(snap, keep_fine, r.factor)
         if n:
             self._load_arrays(merged)

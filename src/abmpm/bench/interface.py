@@ -12,9 +12,10 @@ import time
 
 import numpy as np
 
-from ..compare.outcomes import mass_beyond_plane
+from ..compare.outcomes import cut_outcome, mass_beyond_plane
 from ..scene import model as sm
 from ..scene.colliders import SHAPE_SCHEMAS
+from ..scene.loader import load_scene
 from ..simulation import Simulation
 
 # (slit width in coarse cells, refinement factor b, jitter seeds). The mass through
@@ -342,6 +343,23 @@ def run_free_bar(seconds: float, device: str, b: int = 2) -> dict:
             **_against_finest(res, ke_ratio="kinetic_energy")}
 
 
+def run_blade_cut(seconds: float, device: str, b: int = 2) -> dict:
+    """The built-in ``blade_cut`` (a blade a tenth of a cell thick driven down through a
+    jelly block) after ``seconds``, every mode at factor ``b``: the cut's width and
+    roughness where the blade has been (``cut_outcome``, the paper's measure), steps."""
+    res = {}
+    for mode in MODES:
+        sc = load_scene("blade_cut")
+        ref = sc.simulation.refinement.model_copy(update={"mode": mode, "factor": b})
+        sc = sc.model_copy(update={"simulation": sc.simulation.model_copy(update={"refinement": ref})})
+        sim = Simulation(sc, device=device)
+        sim.advance(seconds=seconds)
+        p = sim.particles()
+        cut = cut_outcome(sc, [(sim.time, {"x": p.x, "mass": p.mass})], {})["final"]
+        res[mode] = {"width": cut["cut_width"], "roughness": cut["cut_roughness"], "steps": sim.steps}
+    return {**res, **_against_finest(res, width_ratio="width", roughness_ratio="roughness", steps_ratio="steps")}
+
+
 def _summary(key: str, r: dict) -> str:
     """One line of the suite's report for a case of ``run_interface_suite``."""
     steps = f"steps {r['steps_ratio']}x finest's" if "steps_ratio" in r else ""
@@ -358,6 +376,10 @@ def _summary(key: str, r: dict) -> str:
     if key == "layered tank at rest":
         return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
                 f"{r['fastest_ratio']}x finest's, {steps}")
+    if key == "blade cut":
+        o, a, f = (1e3 * r[m]["width"] for m in MODES)
+        return (f"cut width original {o:.1f}, adaptive {a:.1f}, finest {f:.1f} mm -> adaptive / finest "
+                f"{r['width_ratio']} (goal 0.9-1.1), roughness {r['roughness_ratio']}x finest's; {steps}")
     if key == "dam break":
         o, f = r["original"], r["finest"]
         return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
@@ -391,6 +413,7 @@ def run_interface_suite(device: str, seconds: float = 0.5) -> dict:
             ("layered tank at rest", "tank at rest, coarse water on a refined bottom layer", run_layered_tank, 0.3,
              (2, 4)),
             ("dam break", "dam break into a refined box at the far wall", run_dam_break, 0.5, (2, 3)),
+            ("blade cut", "a blade cutting a jelly block (blade_cut, 0.6 s)", run_blade_cut, 0.6, (2,)),
             ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3))):
         for b in factors:
             r = results[f"{key}, b = {b}"] = run(span, device, b)
