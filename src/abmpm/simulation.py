@@ -25,7 +25,7 @@ from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
-from .sim.time_levels import SLOW_STEP_COST, cut_for_levels, slow_steps_apart
+from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 from .sim.state import DYNAMIC, STATIC, ParticleState
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
@@ -157,9 +157,8 @@ class Simulation:
             # the sorts choose the slow set only where its step could pay (on a GPU that
             # choice is a host round trip per sort): a step longer than SLOW_STEP_COST substeps
             solver.choose_slow = slow_dt * self._left > SLOW_STEP_COST * rest
-            self._left, k = cut_for_levels(rest, dt_max, slow_dt, SEGMENT_MAX,
-                                           solver.slow_count, solver.fast_cost(), nodes)
-            solver.block = k if slow_steps_apart(solver.slow_count, nodes, k) else 1
+            self._left, solver.block = cut_for_levels(rest, dt_max, slow_dt, SEGMENT_MAX,
+                                                      solver.slow_count, solver.fast_cost(), nodes)
         self.dt = rest / self._left
 
     def _checked_dt(self, signal: tuple[float, float]) -> float:

@@ -16,6 +16,7 @@ from ..compare.outcomes import cut_outcome, mass_beyond_plane
 from ..scene import model as sm
 from ..scene.colliders import SHAPE_SCHEMAS
 from ..scene.loader import load_scene
+from ..scene.model import with_mode
 from ..simulation import Simulation
 
 # (slit width in coarse cells, refinement factor b, jitter seeds). The mass through
@@ -349,9 +350,7 @@ def run_blade_cut(seconds: float, device: str, b: int = 2) -> dict:
     roughness where the blade has been (``cut_outcome``, the paper's measure), steps."""
     res = {}
     for mode in MODES:
-        sc = load_scene("blade_cut")
-        ref = sc.simulation.refinement.model_copy(update={"mode": mode, "factor": b})
-        sc = sc.model_copy(update={"simulation": sc.simulation.model_copy(update={"refinement": ref})})
+        sc = with_mode(load_scene("blade_cut"), mode, factor=b)
         sim = Simulation(sc, device=device)
         sim.advance(seconds=seconds)
         p = sim.particles()

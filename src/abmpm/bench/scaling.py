@@ -47,20 +47,20 @@ def sloshing_tank(length: int, mode: str = "adaptive", region: str = "box") -> s
     steps = "per_level" if mode == "per_level" else "global"
     mode = "adaptive" if mode == "per_level" else mode
     refinement = {"mode": mode, "factor": FACTOR, "time_steps": steps}
-    water, colliders = (0.0, 0.0, 0.0), []
+    water_end, colliders = L, []  # the water's right end
     if region == "box":
         refinement["boxes"] = [((L - BOX, 0.0, 0.0), (L, HEIGHT, WIDTH))]
     else:  # a wall across the tank (normal x) with one hole, the water on its left
         x = L - BOX / 2
         colliders = [SHAPE_SCHEMAS["perforated_plate"](size=(2 * HEIGHT, WIDTH + 0.1), hole_diameter=HOLE,
                                                         center=(x, HOLE_Y, WIDTH / 2), rotation=(0.0, 0.0, 90.0))]
-        water = (x - DX / 2, 0.0, 0.0)
+        water_end = x - DX / 2
     return sm.Scene(
         name=f"scaling_tank_{region}_{length}x",
         simulation=sm.SimulationSettings(domain_max=(L, HEIGHT, WIDTH), dx=DX, fps=20, walls={"type": "slip"},
                                          refinement=refinement),
         materials=[sm.Fluid(name="water", bulk_modulus=4.0e4)],
-        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(water[0] or L, DEPTH, WIDTH),
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(water_end, DEPTH, WIDTH),
                            velocity=(SLOSH, 0.0, 0.0))],
         colliders=colliders,
     )

@@ -304,10 +304,11 @@ class Output(_Strict):
 # --------------------------------------------------------------------------- scene
 
 
-def with_mode(scene: "Scene", mode: str) -> "Scene":
-    """The same scene run in another refinement mode (original, adaptive, finest)."""
+def with_mode(scene: "Scene", mode: str, **refinement_settings) -> "Scene":
+    """The same scene run in another refinement mode (original, adaptive, finest), with
+    other ``[simulation.refinement]`` settings too if given (``factor=3``)."""
     st = scene.simulation
-    refinement = st.refinement.model_copy(update={"mode": mode})
+    refinement = st.refinement.model_copy(update={"mode": mode, **refinement_settings})
     return scene.model_copy(update={"simulation": st.model_copy(update={"refinement": refinement})})
 
 

@@ -349,30 +349,32 @@ SLOW_STEP_COST, SLOW_NODE_STEP_COST, SLOW_NODE_SUBSTEP_COST = 1.4, 0.032, 0.008
 LEVEL1_SUBSTEP_COST = 3.0
 
 
-def slow_steps_apart(n_slow: int, nodes: int, k: int) -> bool:
-    """Whether S pays for stepping apart with ``k`` substeps a step: its particles'
-    saving outweighs the work the size of the coarse grid (``nodes``) it adds."""
-    return k >= 2 and n_slow * (k - SLOW_STEP_COST) > nodes * (SLOW_NODE_STEP_COST + k * SLOW_NODE_SUBSTEP_COST)
+def slow_substep_cost(n_slow: int, nodes: int, k: int) -> float:
+    """S's cost a substep when it takes a step every ``k`` substeps (``nodes``: the coarse
+    grid's), or ``n_slow`` (stepping with everyone) where stepping apart would not pay:
+    its particles' saving must outweigh the work the size of the coarse grid it adds."""
+    apart = n_slow * SLOW_STEP_COST / k + nodes * (SLOW_NODE_STEP_COST / k + SLOW_NODE_SUBSTEP_COST)
+    return apart if k >= 2 and apart < n_slow else float(n_slow)
 
 
 def cut_for_levels(rest: float, dt_max: float, slow_dt: float, cap: int, n_slow: int, fast_cost: float,
                    nodes: int) -> tuple[int, int]:
-    """The rest of a frame in equal substeps, and S's step in substeps (k): the cheapest
-    of the cuts into substeps no longer than ``dt_max`` that give S a step of 1 ... ``cap``
+    """The rest of a frame in equal substeps, and S's step in substeps: the cheapest of
+    the cuts into substeps no longer than ``dt_max`` that give S a step of 1 ... ``cap``
     substeps no longer than ``slow_dt``. The first cut is the fewest substeps, with k as
     many of them as fit in ``slow_dt``; the others shorten the substep to slow_dt / k, so
     that F pays more substeps for S's fewer steps (``fast_cost``: F's cost a substep, in
-    level-0 particle substeps). Ties keep the fewest substeps. Returns (substeps, k)."""
+    level-0 particle substeps). Ties keep the fewest substeps. Returns (substeps, block):
+    block = k where S steps apart, 1 where it steps with everyone."""
     fewest = max(1, math.ceil(rest / dt_max - 1e-9))
     best = None
     for want in range(1, max(1, cap) + 1):
         n = fewest if want == 1 else max(fewest, math.ceil(rest * want / slow_dt - 1e-9))
         k = max(1, min(cap, math.floor(slow_dt * n / rest * (1.0 + 1e-9)), n))
-        slow = n_slow * SLOW_STEP_COST / k + nodes * (SLOW_NODE_STEP_COST / k + SLOW_NODE_SUBSTEP_COST) \
-            if slow_steps_apart(n_slow, nodes, k) else n_slow
+        slow = slow_substep_cost(n_slow, nodes, k)
         cost = n * (fast_cost + slow)
         if best is None or cost < best[0] * (1.0 - 1e-9):
-            best = (cost, n, k)
+            best = (cost, n, k if slow < n_slow else 1)
     return best[1], best[2]
 
 
