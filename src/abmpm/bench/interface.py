@@ -31,9 +31,9 @@ SEEDS4 = (0, 1, 2, 3)
 SLITS = [(0.5, 2, SEEDS4, 0.0, 0.0), (1.0, 2, SEEDS4, 0.0, 0.0), (0.5, 3, (0,), 0.0, 0.0), (0.75, 3, (0,), 0.0, 0.0),
          (1.0, 3, (0,), 0.0, 0.0), (1.5, 3, (0,), 0.0, 0.0), (0.75, 4, (0,), 0.0, 0.0), (0.75, 3, (0,), 20.0, 0.0),
          (0.75, 3, (0,), 0.0, 0.25)]
-# round holes (diameter in coarse cells, b, lift), one seed (the 0.5-cell slit at b = 3 and the
-# 0.75-cell hole at b = 4 joined from an audit of cases outside the matrix, docs/benchmarks.md): finest's 1-cell hole at b = 3
-# reads 0.0176 and 0.0178 on seeds 0 and 1
+# round holes (diameter in coarse cells, b, lift), one seed: finest's 1-cell hole at b = 3
+# reads 0.0176 and 0.0178 on seeds 0 and 1. The 0.5-cell slit at b = 3 and the 0.75-cell hole
+# at b = 4 joined from an audit of cases outside the matrix (docs/benchmarks.md).
 HOLES = [(1.0, 3, 0.0), (1.5, 2, 0.0), (1.5, 3, 0.0), (0.75, 4, 0.0), (1.0, 3, 0.25), (1.5, 3, 0.25)]
 # the 1-cell slit at b = 3 with other fluids than the soft water (K = 2e4 Pa) of the rest:
 # (name, Fluid parameters)
