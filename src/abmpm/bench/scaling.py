@@ -122,7 +122,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     tank's length."""
     regions = list(dict.fromkeys(r.get("region", "box") for r in rows))
     fig = Figure(figsize=(5.0 * len(regions), 4.0))  # no pyplot: a file, never a window
-    axes = fig.subplots(1, len(regions), squeeze=False)[0]
+    axes = fig.subplots(1, len(regions), squeeze=False, sharey=True)[0]  # one scale: the tanks side by side
     titles = {"box": f"refined box {BOX} m wide at the end", "hole": f"a hole {HOLE * 100:g} cm across near the end"}
     for ax, region in zip(axes, regions):
         mine = [r for r in rows if r.get("region", "box") == region]
