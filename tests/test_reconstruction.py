@@ -160,6 +160,27 @@ def test_sphere_roughness_protrusion_and_volume(sphere):
     conservation_checks(parents, plain, recon, inside=r_par < R - DX)
 
 
+def sphere_roughness(x: np.ndarray, centre: np.ndarray) -> float:
+    """Spread of the outermost particle per direction bin (300 bins) about ``centre``."""
+    d = x.astype(np.float64) - centre
+    return outermost_per_bin(np.linalg.norm(d, axis=1), np.argmax(d @ fibonacci_directions(300).T, axis=1)).std()
+
+
+def test_sphere_off_the_nodes_at_b3():
+    """The case outside the suite that read 0.54-0.62 of the parents' roughness (issue
+    26): a fluid sphere 6 coarse cells in radius, its centre 0.26 cells off a node, split
+    whole at b = 3. Aiming each family's outermost child (not its centre) half a fine layer
+    deep brought 48 such spheres (radius 4-7 cells, b = 2 and 3, on and off the nodes,
+    three seeds) from 0.32-0.62 to 0.19-0.42 (docs/method.md); the bound is the issue's 0.5."""
+    centre = np.array([0.5, 0.5, 0.5]) + 0.26 * DX
+    body = sm.SphereBody(material="m", center=tuple(centre), radius=0.3)
+    parents = parents_of(sample_body(body, sm.SimulationSettings(dx=DX), np.random.default_rng(1)), 1000.0)
+    recon = split(parents, sm.Fluid(name="m"), True, b=3)
+    ratio = sphere_roughness(recon["x"], centre) / sphere_roughness(parents["x"], centre)
+    print(f"sphere off the nodes, b = 3: roughness {ratio:.3f} x the parents'")
+    assert ratio <= 0.5
+
+
 def sheared_block(seed: int = 3):
     """An elastic block sheared and stretched by A before the split, with each
     particle's F off A by a few percent (as after a real deformation): the F-deformed

@@ -27,13 +27,14 @@ Our reading of the paper, with the decisions it leaves open (docs/method.md,
    d_s = (phi - 1/2) / |grad phi| and N_s = grad phi / |grad phi|.
 3. **Moving the children (Eq. 20).** The family of an *outermost* surface parent
    (no particle on top of it within a parent spacing) moves rigidly along N_s so
-   that its centre lies half a lattice layer deep, where the outermost centres of
-   a lattice sit on average (the layer spacing along N_s of the parent's
-   F-deformed lattice: a spacing on a face, less on an oblique cut). Protruding
-   families are pulled in, families in a dent pushed out (never by more than a
-   spacing); lower layers, interior parents and lone droplets do not move. A rigid
-   move keeps the family's sub-lattice (children are never projected onto one
-   surface), and with the split's velocities (the parent's affine field about the
+   that its outermost child lies half a fine lattice layer deep, where the outermost
+   centres of a lattice sit on average (the layer spacing along N_s of the children's
+   F-deformed lattice: a fine spacing on a face, less on an oblique cut). For
+   materials with a deformation gradient the depth is taken onto the level set by
+   Newton steps. Protruding families are pulled in, families in a dent pushed out
+   (never by more than a spacing); lower layers, interior parents and lone droplets
+   do not move. A rigid move keeps the family's sub-lattice (children are never
+   projected onto one surface), and with the split's velocities (the parent's affine field about the
    family's centre) mass and momentum stay exactly those of Eq. 15.
 4. **Keeping the volume.** The smoothed surface of a small or curved body lies
    inside the true one (by about kernel width^2 / radius). The mean move of the
@@ -46,7 +47,7 @@ from __future__ import annotations
 import warp as wp
 
 from .grid import GridSpec, nearest_node_coords, node_coords, node_index
-from .materials import MaterialParams, volume_ratio
+from .materials import MaterialParams, carries_F, volume_ratio
 from .parallel import EMPTY_BOUND, Reach, ThreadSums, add_thread_sums, widen_reach
 from .state import ParticleArrays
 from .stencil import bspline_weights, stencil_base, stencil_offset
@@ -222,12 +223,43 @@ def covered(points: wp.uint64, x: wp.array(dtype=wp.vec3), p: int, out: wp.vec3,
     return False
 
 
+# Newton steps along N_s that take Eq. 17's first-order depth onto the level set phi = 1/2
+# itself, for materials that keep a deformation gradient (solids, sand, snow): their
+# particles keep an F-deformed lattice, and the first-order depth carries an error that
+# depends on where that lattice sits against the coarse nodes, different from parent to
+# parent. A fluid keeps no lattice, and phi at its surface point is made of fewer
+# particles than at the parent: there the exact level set follows their noise, and the
+# first-order depth from the parent is the smoother estimate (docs/method.md,
+# "Surface reconstruction", has the measurements)
+LEVEL_SET_STEPS = 2
+
+
+@wp.func
+def occupied_fraction(f: SurfaceField, g: GridSpec, x: wp.vec3):
+    # phi (occupied fraction of space) and its gradient at x, interpolated from the
+    # smoothed node volumes
+    base = stencil_base(g, x)
+    fx = stencil_offset(g, x, base)
+    w = bspline_weights(fx)
+    dw = bspline_slopes(fx)
+    phi = float(0.0)
+    grad = wp.vec3(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                v = f.smooth[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
+                phi += w[i, 0] * w[j, 1] * w[k, 2] * v
+                grad += v * weight_gradient(w, dw, i, j, k)
+    cell = g.dx * g.dx * g.dx
+    return phi / cell, grad * (g.inv_dx / cell)
+
+
 @wp.kernel
 def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: wp.array(dtype=MaterialParams),
-                  f: SurfaceField, g: GridSpec, points: wp.uint64, shift: wp.array(dtype=wp.vec3)):
+                  f: SurfaceField, g: GridSpec, b: int, points: wp.uint64, shift: wp.array(dtype=wp.vec3)):
     """Rigid displacement of the family of each parent about to split (Eqs. 17-20,
-    see the module docstring): an outermost family's centre goes half a spacing
-    inside the parent-level surface. Zero for interior parents, for lower layers (a
+    see the module docstring): an outermost family's outermost child goes half a fine
+    layer inside the parent-level surface. Zero for interior parents, for lower layers (a
     family with another particle on top of it that sits too deep) and far from any
     surface. Computed before the split, which overwrites the parents."""
     p = wp.tid() + first
@@ -239,39 +271,39 @@ def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays,
     h = wp.pow(s.volume[p] * wp.abs(J), 1.0 / 3.0)  # current lattice spacing of the parent
     if not is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J)):
         return
-    base = stencil_base(g, xp)
-    fx = stencil_offset(g, xp, base)
-    w = bspline_weights(fx)
-    dw = bspline_slopes(fx)
-    phi = float(0.0)  # occupied fraction of space, interpolated from the smoothed nodes
-    grad = wp.vec3(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                v = f.smooth[node_index(g, base[0] + i, base[1] + j, base[2] + k)]
-                phi += w[i, 0] * w[j, 1] * w[k, 2] * v
-                grad += v * weight_gradient(w, dw, i, j, k)
-    cell = g.dx * g.dx * g.dx
-    phi = phi / cell
-    grad = grad * (g.inv_dx / cell)
+    phi, grad = occupied_fraction(f, g, xp)
     slope = wp.length(grad)
     # a surface takes phi from 1 to 0 over a few cells; a much flatter phi is noise
     if slope < 0.05 * g.inv_dx:
         return
     N = grad / slope  # N_s, inwards (Eq. 19)
     depth = (phi - 0.5) / slope  # d_s > 0 inside (Eq. 17, first order)
+    # (within the surface layer: a deeper parent only needs to know that it is deep)
+    if carries_F(materials[s.material[p]]) and wp.abs(depth) < g.dx:
+        for _ in range(LEVEL_SET_STEPS):
+            phi_s, grad_s = occupied_fraction(f, g, xp - depth * N)  # at the estimated surface point
+            slope_s = wp.dot(grad_s, N)
+            if slope_s > 0.05 * g.inv_dx:
+                depth = depth + wp.clamp((phi_s - 0.5) / slope_s, -0.25 * g.dx, 0.25 * g.dx)
     if depth < -g.dx:
         return  # far outside the smoothed surface (a lone droplet): leave it
     # The outermost centres of a lattice cut by a plane sit on average half a layer
     # spacing deep. The parent lattice is F h0 Z^3 (h0 = V0^(1/3), scaled by the J a
     # model keeps outside F); its heights along N are h0 m . u with u = F^T N, so its
-    # layers are h0 |u| / |u/|u||_1 apart: h on a face, h / sqrt(3) on a (111) cut.
-    # Aiming there keeps the volume of oblique and curved surfaces.
+    # layers are h0 |u| / |u/|u||_1 apart: h on a face, h / sqrt(3) on a (111) cut, and
+    # the children's lattice (spacing h0 / b) has layers b times closer. The family's
+    # outermost child lies h0 (1 - 1/b) |u|_1 / 2 out from its centre (the sub-lattice's
+    # corner along N), so aiming that child half a fine layer deep puts the centre
+    # ``target`` deep: a face's families as before (half a layer), an oblique cut's
+    # deeper, so that a family's corner no longer sticks out of a curved surface.
     u = wp.transpose(s.F[p]) * N
     ul = wp.length(u)
+    u1 = wp.abs(u[0]) + wp.abs(u[1]) + wp.abs(u[2])
     h0 = wp.pow(s.volume[p] * wp.abs(J / wp.determinant(s.F[p])), 1.0 / 3.0)
-    layer = h0 * ul * ul / (wp.abs(u[0]) + wp.abs(u[1]) + wp.abs(u[2]))
-    gap = 0.5 * layer - depth  # > 0: the family sits too far out by gap; < 0: too deep
+    layer = h0 * ul * ul / u1
+    bf = float(b)
+    target = 0.5 * layer / bf + 0.5 * (1.0 - 1.0 / bf) * h0 * u1
+    gap = target - depth  # > 0: the family sits too far out by gap; < 0: too deep
     if gap < -layer or (gap < 0.0 and covered(points, s.x, p, -N, h)):
         return  # a lower layer: the family on top of it forms the surface
     shift[p] = wp.clamp(gap, -h, h) * N  # Eq. 20; a family never moves by more than a spacing

@@ -276,7 +276,8 @@ class Refiner:
                 self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
                 self._raw_shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
             self.launcher.launch(family_shifts, n - skip, [self._flag, state.arrays(), materials, self.surface,
-                                                           self.coarse.spec, self._points.id, self._raw_shift],
+                                                           self.coarse.spec, self.b, self._points.id,
+                                                           self._raw_shift],
                                  start=skip)
             self.launcher.launch(keep_volume, n - skip, [self._flag, state.x, self._points.id, 3.0 * self.coarse.dx,
                                                          self._raw_shift, self._shift], start=skip)

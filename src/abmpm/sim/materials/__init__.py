@@ -108,6 +108,17 @@ def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
     return wp.determinant(F)
 
 
+@wp.func
+def carries_F(mat: MaterialParams):
+    """Whether the particle's model keeps a deformation gradient (a solid: its particles
+    stay on their F-deformed lattice); False for the models that keep only J."""
+    for i in range(wp.static(len(REGISTRY))):
+        if wp.static(not REGISTRY[i].uses_F):
+            if mat.model == i:
+                return False
+    return True
+
+
 @dataclass(frozen=True)
 class Dispatch:
     """The per-particle model dispatch of the transfer kernels, over a given set of
