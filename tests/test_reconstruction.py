@@ -128,14 +128,7 @@ def sphere():
 def test_sphere_roughness_protrusion_and_volume(sphere):
     parents, plain, recon = sphere
     c, R = np.array([0.5, 0.5, 0.5]), 0.3
-    dirs = fibonacci_directions(300)
-
-    def roughness(x):
-        d = x.astype(np.float64) - c
-        r = np.linalg.norm(d, axis=1)
-        return outermost_per_bin(r, np.argmax(d @ dirs.T, axis=1)).std()
-
-    rough_p, rough_plain, rough_recon = roughness(parents["x"]), roughness(plain["x"]), roughness(recon["x"])
+    rough_p, rough_plain, rough_recon = (sphere_roughness(x, c) for x in (parents["x"], plain["x"], recon["x"]))
     print(f"sphere roughness / h: parents {rough_p / H:.3f}, plain split {rough_plain / H:.3f}, "
           f"reconstructed {rough_recon / H:.3f}")
     assert rough_recon <= 0.5 * rough_p

@@ -34,8 +34,9 @@ Our reading of the paper, with the decisions it leaves open (docs/method.md,
    Newton steps. Protruding families are pulled in, families in a dent pushed out
    (never by more than a spacing); lower layers, interior parents and lone droplets
    do not move. A rigid move keeps the family's sub-lattice (children are never
-   projected onto one surface), and with the split's velocities (the parent's affine field about the
-   family's centre) mass and momentum stay exactly those of Eq. 15.
+   projected onto one surface), and with the split's velocities (the parent's
+   affine field about the family's centre) mass and momentum stay exactly those of
+   Eq. 15.
 4. **Keeping the volume.** The smoothed surface of a small or curved body lies
    inside the true one (by about kernel width^2 / radius). The mean move of the
    moving families within three coarse cells is taken out of each move, so the
