@@ -1,10 +1,9 @@
 """Figure for docs/validation.md: a split surface with and without reconstruction.
 
 python docs/figures/reconstruction.py  ->  docs/images/reconstruction.png
-(uses the measurement helpers of tests/test_reconstruction.py)
+(the helpers of ``abmpm bench --suite reconstruction``, src/abmpm/bench/reconstruction.py)
 """
 
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -13,23 +12,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-root = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(root / "tests"))
-import test_reconstruction as T  # noqa: E402
-from abmpm.geometry.sampling import sample_body  # noqa: E402
+from abmpm.bench.reconstruction import H, sphere_parents, split_whole  # noqa: E402
 from abmpm.scene import model as sm  # noqa: E402
 
-c, R = np.array([0.5, 0.5, 0.5]), 0.3
-x = sample_body(sm.SphereBody(material="m", center=tuple(c), radius=R), sm.SimulationSettings(dx=T.DX),
-                np.random.default_rng(7))
-parents = T.parents_of(x, 1000.0)
+root = Path(__file__).resolve().parents[2]
+R = 0.3
+parents, c = sphere_parents(R, 0.0, 7)
 fluid = sm.Fluid(name="m")
-plain, recon = T.split(parents, fluid, False), T.split(parents, fluid, True)
+plain, recon = split_whole(parents, fluid, False), split_whole(parents, fluid, True)
 
 fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), sharex=True, sharey=True)
 titles = ["parents (jittered lattice)", "plain split (Eq. 15)", "with surface reconstruction (Eqs. 16-20)"]
 for ax, pts, size, title in zip(axes, (parents["x"], plain["x"], recon["x"]), (14, 5, 5), titles):
-    sel = np.abs(pts[:, 2] - c[2]) < (T.H / 2 if pts is parents["x"] else T.H / 4)  # one layer thick
+    sel = np.abs(pts[:, 2] - c[2]) < (H / 2 if pts is parents["x"] else H / 4)  # one layer thick
     q = pts[sel]
     ax.scatter(q[:, 0], q[:, 1], s=size, c="#3a7bd5" if pts is parents["x"] else "#e0e0e0",
                edgecolors="#333333", linewidths=0.3)

@@ -37,6 +37,7 @@ from ..sim.parallel import THREADS_ENV, KernelProfile, default_threads
 from ..simulation import Simulation, choose_device
 from .colors import time_band_colors
 from .interface import run_interface_suite
+from .reconstruction import run_reconstruction_suite
 from .scaling import run_scaling
 
 ROUNDS = 3  # collider overhead: alternating timed rounds per case
@@ -259,12 +260,14 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--reference", type=Path, default=None, help="path to mls_mpm_minimal_warp.py")
     ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
-    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "scaling", "all"],
+    ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "scaling", "reconstruction", "all"],
                     default="all",
                     help="all: fluid, adaptive and colliders; interface (not in all, ~10 min on 2 cores): "
                          "adaptive against finest on slits and round holes outside the paper (on and off the node planes), tanks at rest (a vertical and a horizontal interface), a dam break into a refined box, a blade cutting a jelly block, a jelly pressed through a slit and a free jelly bar; "
                          "scaling (not in all, ~2 min): a sloshing tank 1-8x as long around the same refined "
-                         "region (a box, or a wall with a small hole), the modes' cost (a plot beside --json)")
+                         "region (a box, or a wall with a small hole), the modes' cost (a plot beside --json); "
+                         "reconstruction (not in all, ~30 s): the roughness of fluid spheres, sheared elastic "
+                         "blocks, settled water and sand split whole, against their parents'")
     ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
@@ -343,10 +346,12 @@ def run_bench(argv: list[str] | None = None) -> dict:
     scaling = []
     if args.suite == "scaling":
         scaling = run_scaling(device, plot=args.json.with_suffix(".png") if args.json else None)
+    reconstruction = run_reconstruction_suite(device) if args.suite == "reconstruction" else {}
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
         "adaptive": adaptive, "colliders": colliders, "interface": interface, "scaling": scaling,
+        "reconstruction": reconstruction,
     }
     if args.json:
         write_json(args.json, result)
