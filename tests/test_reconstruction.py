@@ -18,17 +18,13 @@ import numpy as np
 import pytest
 
 from abmpm.bench.reconstruction import (DX, H, block_top_roughness, parents_of, settled, sheared_block, sphere_parents,
-                                        sphere_roughness, split_whole, tank_top_roughness)
+                                        sphere_roughness, tank_top_roughness)
+from abmpm.bench.reconstruction import split_whole as split  # every parent split (the whole domain refined)
 from abmpm.geometry.sampling import sample_body
 from abmpm.scene import model as sm
 
 B = 2
 FINE = DX / B
-
-
-def split(parents: dict, material, reconstruct: bool, b: int = B) -> dict:
-    """Split every parent (the whole domain is refined), as the adaptive step does."""
-    return split_whole(parents, material, reconstruct, b)
 
 
 def smoothed_volume(x: np.ndarray, mass: np.ndarray, density: float, lo, hi) -> float:

@@ -25,8 +25,8 @@ from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
-from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 from .sim.state import DYNAMIC, STATIC, ParticleState
+from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
 # A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the

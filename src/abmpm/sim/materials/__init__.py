@@ -99,16 +99,6 @@ def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: f
 
 
 @wp.func
-def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
-    """J = V / V0 of a particle: det F, or the ``history`` of models without F."""
-    for i in range(wp.static(len(REGISTRY))):
-        if wp.static(not REGISTRY[i].uses_F):
-            if mat.model == i:
-                return history
-    return wp.determinant(F)
-
-
-@wp.func
 def carries_F(mat: MaterialParams):
     """Whether the particle's model keeps a deformation gradient (a solid: its particles
     stay on their F-deformed lattice); False for the models that keep only J."""
@@ -117,6 +107,14 @@ def carries_F(mat: MaterialParams):
             if mat.model == i:
                 return False
     return True
+
+
+@wp.func
+def volume_ratio(mat: MaterialParams, F: wp.mat33, history: float):
+    """J = V / V0 of a particle: det F, or the ``history`` of models without F."""
+    if carries_F(mat):
+        return wp.determinant(F)
+    return history
 
 
 @dataclass(frozen=True)
