@@ -23,12 +23,14 @@ from .colliders import (
     ColorField,
     boundary_velocity,
     color_point,
+    compatible,
     near_surface,
     node_bit,
     rigid_velocity,
     stop_crossing,
 )
-from .grid import GridSpec, node_index
+from .footprint import footprint, footprint_weights
+from .grid import GridSpec, node_index, stencil_node, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
@@ -113,10 +115,48 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, s
     return x_end, v_end, c
 
 
+def _make_gather_box(cpic: bool):
+    @wp.func
+    def gather_box(g: GridSpec, colliders: ColliderArrays, color: ColorField, grid_v: wp.array(dtype=wp.vec3),
+                   s: ParticleArrays, p: int, dt: float):
+        """Eqs. 5-6 for a level-0 particle on the fine grid with the kernel it scattered
+        with there, its box (``sim/footprint.py``), and that kernel's inertia. Every node
+        of its footprint is active (``p2g_sparse`` says so); an incompatible node lends
+        the particle's boundary velocity (Eqs. 23-25). Returns (v, C)."""
+        xp = s.x[p]
+        fp = footprint_weights(g, xp, footprint(g, xp, s.volume[p]))
+        slots = stencil_slots(g, fp.base)
+        cb = s.surface_body[p]
+        v_bar = wp.vec3(0.0)
+        if wp.static(cpic):
+            if cb >= 0:
+                v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
+        v = wp.vec3(0.0)
+        B = wp.mat33(0.0)
+        for i in range(fp.nodes):
+            for j in range(fp.nodes):
+                for k in range(fp.nodes):
+                    weight = fp.wx[i] * fp.wy[j] * fp.wz[k]
+                    n = stencil_node(g, slots, fp.base, i, j, k)
+                    if weight > 0.0 and n >= 0:
+                        node = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k))
+                        dpos = g.origin + node * g.dx - xp
+                        vi = grid_v[n]
+                        if wp.static(cpic):
+                            if not compatible(s.surface_point[p], s.surface_side[p], cb, xp, color, xp + dpos, n, g.dx):
+                                vi = v_bar
+                        v += weight * vi
+                        B += weight * wp.outer(vi, dpos)
+        return v, B * fp.inertia_inv
+
+    return gather_box
+
+
 def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
     ops = dispatch(models)
     deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
     stencil, node_at = STORAGE[sparse]
+    gather_box = _make_gather_box(cpic)
 
     @variant("g2p_sparse" if sparse else "g2p_dense", cpic, models=models)
     def g2p(
@@ -129,54 +169,75 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         grid_v: wp.array(dtype=wp.vec3),
         s: ParticleArrays,  # updated in place: each thread touches only its own particle
         cmask: wp.array(dtype=wp.int32),  # compatibility masks from this step's P2G
+        coarse: GridSpec,  # the coarse grid and its colors: a level-0 particle's band
+        coarse_color: ColorField,
+        on_fine: wp.array(dtype=wp.int32),  # 1: a level-0 particle the fine grid moves (p2g_sparse)
         signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
     ):
         p = wp.tid() + first
-        if s.level[p] != g.level:
-            return
+        level0_here = s.level[p] != g.level  # a level-0 particle on the fine grid
+        if level0_here:
+            if wp.static(not sparse):
+                return
+            if on_fine[p] == 0:
+                return
+        if wp.static(not sparse):
+            if on_fine.shape[0] > p:  # length 1 where no fine grid exists
+                if on_fine[p] != 0:
+                    return
         dt = dt_now[0]
         xp = s.x[p]
-        st = wp.static(stencil)(g, xp)
         new_v = wp.vec3(0.0)
-        B = wp.mat33(0.0)
-        for i in range(3):
-            for j in range(3):
-                for k in range(3):
-                    weight = weight_at(st, i, j, k)
-                    vi = wp.vec3(0.0)
-                    n = wp.static(node_at)(g, st, i, j, k)
-                    if wp.static(sparse):
-                        if n >= 0:  # a level-1 particle's blocks are active; never read outside
+        new_C = wp.mat33(0.0)
+        if level0_here:  # with its box, the kernel it scattered with here
+            new_v, new_C = wp.static(gather_box)(g, colliders, color, grid_v, s, p, dt)
+        else:
+            st = wp.static(stencil)(g, xp)
+            B = wp.mat33(0.0)
+            for i in range(3):
+                for j in range(3):
+                    for k in range(3):
+                        weight = weight_at(st, i, j, k)
+                        vi = wp.vec3(0.0)
+                        n = wp.static(node_at)(g, st, i, j, k)
+                        if wp.static(sparse):
+                            if n >= 0:  # a level-1 particle's blocks are active; never read outside
+                                vi = grid_v[n]
+                        else:
                             vi = grid_v[n]
-                    else:
-                        vi = grid_v[n]
-                    new_v += weight * vi  # Eq. 5 / 11
-                    B += weight * wp.outer(vi, offset_at(g, st, i, j, k))
-        if wp.static(cpic):
-            cb = s.surface_body[p]
-            if cb >= 0:
-                # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
-                mask = cmask[p]
-                if mask != ALL_NODES:
-                    # the particle's velocity advanced by gravity like the grid's, then
-                    # projected by the collider's boundary type
-                    v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
-                    dv, dB = lend_boundary_velocity(g, st, grid_v, mask, v_bar)
-                    new_v += dv
-                    B += dB
-        # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
-        new_C = (4.0 * g.inv_dx * g.inv_dx) * B
+                        new_v += weight * vi  # Eq. 5 / 11
+                        B += weight * wp.outer(vi, offset_at(g, st, i, j, k))
+            if wp.static(cpic):
+                cb = s.surface_body[p]
+                if cb >= 0:
+                    # Eqs. 24-25: an incompatible node lends the particle's boundary velocity (Eq. 23)
+                    mask = cmask[p]
+                    if mask != ALL_NODES:
+                        # the particle's velocity advanced by gravity like the grid's, then
+                        # projected by the collider's boundary type
+                        v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
+                        dv, dB = lend_boundary_velocity(g, st, grid_v, mask, v_bar)
+                        new_v += dv
+                        B += dB
+            # Eq. 6 with the quadratic-spline inertia D^-1 = 4/dx^2 I
+            new_C = (4.0 * g.inv_dx * g.inv_dx) * B
+        # a level-0 particle keeps its own grid's band and colors
+        gb = g
+        cf = color
+        if level0_here:
+            gb = coarse
+            cf = coarse_color
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
         mat = materials[s.material[p]]
         wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
-        xn = clamp_to_domain(g, xp + dt * new_v)
+        xn = clamp_to_domain(gb, xp + dt * new_v)
         if wp.static(cpic):
             cb = s.surface_body[p]
             # a particle with no color that ends its step outside the band, after a move
             # shorter than the band, stays uncolored: only the others pay for the
             # call (Warp copies its struct arguments)
-            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * g.dx or near_surface(color, g, xn):
-                xn, new_v, c = advect(colliders, color, g, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
+            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * gb.dx or near_surface(cf, gb, xn):
+                xn, new_v, c = advect(colliders, cf, gb, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
                 s.surface_point[p] = c.surface_point
                 s.surface_side[p] = c.surface_side
                 s.surface_body[p] = c.body

@@ -235,25 +235,29 @@ def _make_scatter_footprint(cpic: bool):
                           grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach):
         # A level-0 particle onto the fine grid: Eq. 8 with its footprint's weights
         # (sim/footprint.py) and the MLS inertia of that kernel in Eq. 10. CPIC node by
-        # node: the particle's color is the exact closest point, on any grid.
+        # node: the particle's color is the exact closest point, on any grid. Returns
+        # whether every node of the footprint is active.
         xp = s.x[p]
         fp = footprint(g, xp, s.volume[p])
         # its 5 nodes per axis lie in the 2 blocks per axis a 3x3x3 stencil at the same
         # base spans: one table lookup per block
         slots = stencil_slots(g, fp.base)
         if wp.max(slots) < 0:
-            return
+            return False
         fp = footprint_weights(g, xp, fp)
         affine = (-dt * s.volume[p]) * (fp.inertia_inv * tau) + s.mass[p] * s.C[p]
         mv = s.mass[p] * s.v[p]
         lo = EMPTY
         hi = int(-1)
+        whole = bool(True)
         for i in range(fp.nodes):
             for j in range(fp.nodes):
                 weight_ij = fp.wx[i] * fp.wy[j]
                 for k in range(fp.nodes):
                     weight = weight_ij * fp.wz[k]
                     n = stencil_node(g, slots, fp.base, i, j, k)
+                    if weight > 0.0 and n < 0:
+                        whole = False
                     if weight > 0.0 and n >= 0:
                         c = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k))
                         dpos = g.origin + c * g.dx - xp
@@ -266,6 +270,7 @@ def _make_scatter_footprint(cpic: bool):
                             lo = wp.min(lo, n)
                             hi = wp.max(hi, n)
         widen_reach(reach, lo, hi)
+        return whole
 
     return scatter_footprint
 
@@ -277,10 +282,15 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
     def p2g_sparse(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
                    color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
                    grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
-                   tau_store: wp.array(dtype=wp.mat33)):
+                   tau_store: wp.array(dtype=wp.mat33), on_fine: wp.array(dtype=wp.int32)):
         p = wp.tid() + first
         if s.level[p] == 0 and wider_than_a_cell(g, s.volume[p]):
-            scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
+            # A level-0 particle in a collider's band whose whole footprint lies in active
+            # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
+            # collider is then the fine grid's, like the level-1 material it meets there
+            # (docs/method.md, "Coarse particles in the band move with the fine grid")
+            whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
+            on_fine[p] = wp.where(whole and s.surface_body[p] >= 0, 1, 0)
             return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):

@@ -51,7 +51,7 @@ from .p2g import p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
 from .segments import Graphs, SegmentStart, Signals, buffer_key
-from .sorting import level_ranges, sort_by_cell
+from .sorting import level_ranges, sort_by_cell, span
 from .state import FIELDS, ParticleState
 from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
@@ -100,12 +100,12 @@ class MPMSolver:
         self._no_occ = wp.zeros(1, dtype=wp.int32, device=device)
         self._occ = self._no_occ  # coarse nodes reached by level-0 particles (adaptive mode)
         self._cmask = self._no_occ  # per-particle compatibility mask, P2G -> G2P (CPIC)
+        self._on_fine = self._no_occ  # level-0 particles the fine grid moves (p2g_sparse -> g2p_sparse)
         self._dt = wp.zeros(1, dtype=float, device=device)  # the segment's dt, read by the kernels
         self._dt_host = 0.0
         self._signals = Signals(SEGMENT_MAX, self.launcher.threads, device)  # the CFL signal of each substep
         self.signal = self._signals.array
-        # Where each level's particles lie, level (None: all) -> [(first, count)]: one range per
-        # level once sorted (_find_level_ranges), whose transfers run over it alone.
+        # level (None: all) -> [(first, count)], one range per level once sorted (_find_level_ranges)
         self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
@@ -230,9 +230,8 @@ class MPMSolver:
 
     @property
     def segment_length(self) -> int:
-        """The most substeps the next segment may have: up to the next refinement step
-        (every REFINE_EVERY steps); 1 while colliders move (their pose and color field
-        are set on the host before every substep)."""
+        """The most substeps the next segment may have: up to the next refinement step (every
+        REFINE_EVERY steps); 1 while colliders move (pose and color field set on the host each substep)."""
         if self.colliders is not None and not self.colliders.static:
             return 1
         n = SEGMENT_MAX - self._steps % SEGMENT_MAX
@@ -255,7 +254,8 @@ class MPMSolver:
         if self.slow is None or not self.slow.open:
             return None
         g = self.grid
-        common = [self.materials, g.spec, self.collider_arrays, g.color], [g.v, state.arrays(), self._cmask]
+        common = [self.materials, g.spec, self.collider_arrays, g.color], [g.v, state.arrays(), self._cmask, g.spec,
+                                                                           g.color, self._no_occ]
         return self.slow.gather(state, self._ranges["slow"][0], g2p_kernel(False, self.cpic, self.models), common)
 
     def begin_segment(self, state: ParticleState, time: float, dt: float, substeps: int = 1) -> None:
@@ -346,6 +346,7 @@ class MPMSolver:
         # every buffer a substep touches, at the size it needs now
         if len(self.grids) > 1 and self._tau.shape[0] < state.capacity:
             self._tau = wp.empty(state.capacity, dtype=wp.mat33, device=self.device)
+            self._on_fine = wp.zeros(state.capacity, dtype=wp.int32, device=self.device)
         if self.cpic and self._cmask.shape[0] < state.capacity:
             self._cmask = wp.zeros(state.capacity, dtype=wp.int32, device=self.device)
         if self.refiner is not None and self._occ.shape[0] != self.grid.capacity:
@@ -355,8 +356,7 @@ class MPMSolver:
         state.arrays()
         self._find_level_ranges(state)
 
-    def _find_level_ranges(self, state: ParticleState) -> None:
-        # where each level's particles lie (one range per level once sorted; else every range over all)
+    def _find_level_ranges(self, state: ParticleState) -> None:  # self._ranges (__init__)
         ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
         self._ranges = split_off_slow(ranges, self.slow_count if self.block > 1 else 0)
 
@@ -365,7 +365,7 @@ class MPMSolver:
         arrays = [getattr(state, name) for name in FIELDS]
         if self.slow is not None:
             arrays += [self.slow.nodes.m, self.slow.nodes.p, self.slow.nodes.f]
-        arrays += [self._tau, self._cmask, self._occ, self._dt, self.signal, self.materials,
+        arrays += [self._tau, self._cmask, self._on_fine, self._occ, self._dt, self.signal, self.materials,
                    self.collider_arrays.bodies, self.collider_arrays.face_body]
         for g in self.grids:
             arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
@@ -393,7 +393,7 @@ class MPMSolver:
             kernel = p2g_kernel(name, self.cpic, self.models)
             common = [s.arrays(), self.materials, g.spec, g.color, self._dt, self._cmask]
             kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ],
-                    "sparse": [self._tau]}[name]  # the stress kept for the fine pass; the overlap marks
+                    "sparse": [self._tau, self._on_fine]}[name]  # the stress kept for the fine pass; the overlap marks
             for site, (first, count) in enumerate(self._ranges[_P2G_LEVEL[name]]):
                 self.launcher.launch(kernel, count,
                                      lambda part, first, count: [*common, *private.parts[part],
@@ -421,8 +421,10 @@ class MPMSolver:
         stiffening into ``signal_slots`` (one per CPU part)."""
         for g in self.grids:
             kernel = g2p_kernel(g.sparse, self.cpic, self.models)
-            common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask]
-            for site, (first, count) in enumerate(self._ranges[g.level]):
+            common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask,
+                      self.grid.spec, self.grid.color, self._on_fine]
+            # the fine pass visits every fast particle: on_fine marks the level-0 ones it moves
+            for site, (first, count) in enumerate([span(self._ranges[None])] if g.sparse else self._ranges[g.level]):
                 self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
                                      start=first, label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 
@@ -450,8 +452,7 @@ class MPMSolver:
             self.collider_arrays = self.colliders.arrays
 
     def color_particles(self, state: ParticleState, min_id: int = -1) -> None:
-        """CPIC color of every particle (of those with an id from ``min_id`` on) from
-        its own grid; later steps update it in G2P."""
+        """CPIC color of every particle (with an id from ``min_id`` on) from its own grid; G2P updates it."""
         if self.colliders is not None and self.cpic:
             self.colliders.color_particles(state, self.grids, self.launcher, min_id)
 
@@ -465,8 +466,7 @@ class MPMSolver:
             self.refine(state)
 
     def refine(self, state: ParticleState) -> None:
-        """Split particles that entered the region (Eq. 15); activate the fine blocks
-        the level-1 particles reach."""
+        """Split particles that entered the region (Eq. 15); activate the fine blocks level 1 reaches."""
         first_child = self._next_id
         skip = 0 if self.slow is None or self.slow.may_be_near() else self.slow_count  # S: far from the region
         n_split = self.refiner.split(state, first_child, self.collider_arrays, self.materials, skip)
