@@ -87,6 +87,23 @@ def test_slit_outside_the_paper_drains_like_finest(slit_cells):
 
 
 @pytest.mark.slow
+def test_round_hole_at_b3_takes_finests_steps():
+    # The plate spanning the box with a round hole one coarse cell across, b = 3, 0.5 s.
+    # Where coarse and refined water met on the plate, the coarse grid moved its
+    # particles into the children lining the plate (their J 0.50-0.60, finest's lowest
+    # 0.65-0.75 there), and the step, which follows the most compressed fluid, made the
+    # run take 1.137x finest's steps. Since level-0 particles in a collider's band move
+    # with the fine grid where it holds them whole (docs/method.md), 0.971x. The issue's
+    # bound: at most 5% above finest's.
+    r = run_slit(1.0, 3, 0.5, "cpu", hole=True)
+    assert r["steps_ratio"] <= 1.05, r
+    # the case is what it says: the coarse grid clogs the hole (original 0.0019 of the
+    # mass through, finest 0.0176). Adaptive lets through 1.44x finest's, outside the
+    # issue's 10%: not asserted, open (docs/method.md, "Round holes").
+    assert r["original"]["through"] < 0.25 * r["finest"]["through"], r
+
+
+@pytest.mark.slow
 def test_dam_break_into_a_refined_box_takes_finests_steps():
     # Coarse water runs along the floor into a refinement box at the far wall and hits
     # the wall there (the "fine and coarse fluid mixed against a wall"). The

@@ -1,8 +1,12 @@
 """Grid to particle (paper Eqs. 5-7, 11-14, 23-25): one pass per level.
 
-A particle gathers velocity and its affine matrix from its own level's grid only
-(Eqs. 11-12): ``g2p_dense`` on the coarse grid (or the single grid of the original
-and finest modes), ``g2p_sparse`` on the fine block-sparse grid. With colliders an
+A particle gathers velocity and its affine matrix from its own level's grid (Eqs.
+11-12): ``g2p_dense`` on the coarse grid (or the single grid of the original and
+finest modes), ``g2p_sparse`` on the fine block-sparse grid. Beyond the paper, a
+level-0 particle in a collider's band whose box lies whole in active fine blocks
+(``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its box as
+the kernel (``gather_box``; docs/method.md, "Coarse particles in a collider's band
+move with the fine grid"), and keeps its own grid's band and colors. With colliders an
 incompatible node lends the particle's boundary velocity instead of its own
 (Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
 deformation update and the material's return mapping (Eqs. 7, 13-14), and the

@@ -288,7 +288,7 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
             # A level-0 particle in a collider's band whose whole footprint lies in active
             # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
             # collider is then the fine grid's, like the level-1 material it meets there
-            # (docs/method.md, "Coarse particles in the band move with the fine grid")
+            # (docs/method.md, "Coarse particles in a collider's band move with the fine grid")
             whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
             on_fine[p] = wp.where(whole and s.surface_body[p] >= 0, 1, 0)
             return
