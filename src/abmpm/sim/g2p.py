@@ -228,9 +228,10 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         # a level-0 particle keeps its own grid's band and colors
         gb = g
         cf = color
-        if level0_here:
-            gb = coarse
-            cf = coarse_color
+        if wp.static(sparse):
+            if level0_here:
+                gb = coarse
+                cf = coarse_color
         # Eq. 7, then the material's return mapping (Eqs. 13-14)
         mat = materials[s.material[p]]
         wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
