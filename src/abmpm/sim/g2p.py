@@ -34,7 +34,7 @@ from .colliders import (
     stop_crossing,
 )
 from .footprint import footprint, footprint_weights
-from .grid import GridSpec, node_index, stencil_node, stencil_slots
+from .grid import GridSpec, node_index, node_position, stencil_node, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
@@ -143,8 +143,7 @@ def _make_gather_box(cpic: bool):
                     weight = fp.wx[i] * fp.wy[j] * fp.wz[k]
                     n = stencil_node(g, slots, fp.base, i, j, k)
                     if weight > 0.0 and n >= 0:
-                        node = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k))
-                        dpos = g.origin + node * g.dx - xp
+                        dpos = node_position(g, fp.base + wp.vec3i(i, j, k)) - xp
                         vi = grid_v[n]
                         if wp.static(cpic):
                             if not compatible(s.surface_point[p], s.surface_side[p], cb, xp, color, xp + dpos, n, g.dx):

@@ -41,6 +41,7 @@ from .grid import (
     GridSpec,
     dense_node_index,
     node_index,
+    node_position,
     stencil_node,
     stencil_slots,
 )
@@ -259,8 +260,7 @@ def _make_scatter_footprint(cpic: bool):
                     if weight > 0.0 and n < 0:
                         whole = False
                     if weight > 0.0 and n >= 0:
-                        c = wp.vec3(float(fp.base[0] + i), float(fp.base[1] + j), float(fp.base[2] + k))
-                        dpos = g.origin + c * g.dx - xp
+                        dpos = node_position(g, fp.base + wp.vec3i(i, j, k)) - xp
                         ok = True
                         if wp.static(cpic):
                             ok = compatible(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color,
