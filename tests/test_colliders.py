@@ -256,3 +256,35 @@ def test_crossing_ray_runs_in_the_frame_of_a_moving_sheet():
     assert hit.numpy()[0] == 1 and 0.0 < y[0] < 0.01 * dx, y
     # the particle that outruns the sheet is left alone
     assert hit.numpy()[1] == 0 and np.allclose(out.numpy()[1], x_new[1])
+
+
+def test_a_particle_resting_on_a_sheet_slides_along_it():
+    """A particle within STOP_GAP of a static sheet, moving half a cell along it and a
+    hundredth of a cell into it, is stopped on its side but keeps most of its sliding:
+    the stop lies on the backed-off ray, and its own path is cast only up to that stop.
+    Cast to the full motion, the path hit the sheet at once and pinned the particle
+    where it was (found on a plate at b = 3: pinned children compressed to J = 0.55
+    while the water around them flowed, setting the whole run's time step)."""
+    dx, dt, y0 = 0.04, 1.0e-3, 0.5
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(dx=dx),
+        materials=[abmpm.Fluid(name="water")],
+        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))],
+        colliders=[sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5))])
+    colliders = ColliderSet(rigid_bodies(scene), "cpu")
+    colliders.set_time(0.0)
+    g = GridSpec()
+    g.dx, g.inv_dx = dx, 1.0 / dx
+    x_old = np.array([[0.5, y0 + 0.005 * dx, 0.5]], np.float32)  # STOP_GAP above the sheet
+    x_new = x_old + np.array([[0.5 * dx, -0.01 * dx, 0.0]], np.float32)
+    out = wp.zeros(1, dtype=wp.vec3, device="cpu")
+    hit = wp.zeros(1, dtype=wp.int32, device="cpu")
+    wp.launch(_stop_crossing, 1, inputs=[colliders.arrays, g, wp.array(x_old, dtype=wp.vec3), wp.array(x_new, dtype=wp.vec3),
+                                         dt, wp.vec3(0.0, 1.0, 0.0), out, hit], device="cpu")
+    x = out.numpy()[0]
+    assert hit.numpy()[0] == 1
+    # on its own side, and no closer than STOP_GAP less float32 round-off (1e-7 m here)
+    assert x[1] - y0 > 0.004 * dx, x
+    # the backed-off ray stops it 1/3 cell along (0.02 cells of back-off over a 0.03-cell
+    # drop, less STOP_GAP along the slanted path); a pinned particle moves 0
+    assert 0.25 * dx < x[0] - x_old[0, 0] < 0.5 * dx, x - x_old[0]
