@@ -227,6 +227,26 @@ def _stop_crossing(colliders: ColliderArrays, g: GridSpec, x_old: wp.array(dtype
     hit[p] = c.hit
 
 
+def _stop_at_sheet(sheet, dx: float, dt: float, x_old: np.ndarray, x_new: np.ndarray):
+    """``stop_crossing`` of particles moving from x_old to x_new next to ``sheet`` alone
+    (posed at time 0, remembered side +y, in contact with body 0): (stops, hits)."""
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(dx=dx),
+        materials=[abmpm.Fluid(name="water")],
+        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))],
+        colliders=[sheet])
+    colliders = ColliderSet(rigid_bodies(scene), "cpu")
+    colliders.set_time(0.0)
+    g = GridSpec()
+    g.dx, g.inv_dx = dx, 1.0 / dx
+    out = wp.zeros(len(x_old), dtype=wp.vec3, device="cpu")
+    hit = wp.zeros(len(x_old), dtype=wp.int32, device="cpu")
+    wp.launch(_stop_crossing, len(x_old), inputs=[colliders.arrays, g, wp.array(x_old, dtype=wp.vec3),
+                                                  wp.array(x_new, dtype=wp.vec3), dt, wp.vec3(0.0, 1.0, 0.0), out, hit],
+              device="cpu")
+    return out.numpy(), hit.numpy()
+
+
 def test_crossing_ray_runs_in_the_frame_of_a_moving_sheet():
     """The mesh stands at its pose of the step's start (time t) while G2P tests the
     step's motion: a sheet rising at 1 m/s towards a particle 0.1 cells above it that
@@ -234,28 +254,17 @@ def test_crossing_ray_runs_in_the_frame_of_a_moving_sheet():
     The ray used to start where the body carries x_old (t + dt) and test it against
     the mesh at t: it missed, and the particle ended 0.4 cells behind the sheet."""
     dx, dt, y0 = 0.04, 0.02, 0.5  # the sheet moves 0.5 cells in the step
-    scene = abmpm.Scene(
-        simulation=abmpm.SimulationSettings(dx=dx),
-        materials=[abmpm.Fluid(name="water")],
-        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))],
-        colliders=[sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5), motion=sm.Motion(keyframes=[
-            sm.Keyframe(time=0.0), sm.Keyframe(time=1.0, translation=(0.0, 1.0, 0.0))]))])
-    colliders = ColliderSet(rigid_bodies(scene), "cpu")
-    colliders.set_time(0.0)
-    g = GridSpec()
-    g.dx, g.inv_dx = dx, 1.0 / dx
+    sheet = sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5), motion=sm.Motion(keyframes=[
+        sm.Keyframe(time=0.0), sm.Keyframe(time=1.0, translation=(0.0, 1.0, 0.0))]))
     # a particle that stays put, and one that outruns the sheet by a cell
     x_old = np.array([[0.5, y0 + 0.1 * dx, 0.5], [0.45, y0 + 0.1 * dx, 0.5]], np.float32)
     x_new = x_old + np.array([[0.0, 0.0, 0.0], [0.0, 1.5 * dx, 0.0]], np.float32)
-    out = wp.zeros(2, dtype=wp.vec3, device="cpu")
-    hit = wp.zeros(2, dtype=wp.int32, device="cpu")
-    wp.launch(_stop_crossing, 2, inputs=[colliders.arrays, g, wp.array(x_old, dtype=wp.vec3), wp.array(x_new, dtype=wp.vec3),
-                                         dt, wp.vec3(0.0, 1.0, 0.0), out, hit], device="cpu")
-    y = out.numpy()[:, 1] - (y0 + 1.0 * dt)  # height above the sheet at t + dt
+    out, hit = _stop_at_sheet(sheet, dx, dt, x_old, x_new)
+    y = out[:, 1] - (y0 + 1.0 * dt)  # height above the sheet at t + dt
     # stopped STOP_GAP (0.005 cells) in front of the moved sheet, to float32 round-off
-    assert hit.numpy()[0] == 1 and 0.0 < y[0] < 0.01 * dx, y
+    assert hit[0] == 1 and 0.0 < y[0] < 0.01 * dx, y
     # the particle that outruns the sheet is left alone
-    assert hit.numpy()[1] == 0 and np.allclose(out.numpy()[1], x_new[1])
+    assert hit[1] == 0 and np.allclose(out[1], x_new[1])
 
 
 def test_a_particle_resting_on_a_sheet_slides_along_it():
@@ -266,23 +275,11 @@ def test_a_particle_resting_on_a_sheet_slides_along_it():
     where it was (found on a plate at b = 3: pinned children compressed to J = 0.55
     while the water around them flowed, setting the whole run's time step)."""
     dx, dt, y0 = 0.04, 1.0e-3, 0.5
-    scene = abmpm.Scene(
-        simulation=abmpm.SimulationSettings(dx=dx),
-        materials=[abmpm.Fluid(name="water")],
-        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))],
-        colliders=[sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5))])
-    colliders = ColliderSet(rigid_bodies(scene), "cpu")
-    colliders.set_time(0.0)
-    g = GridSpec()
-    g.dx, g.inv_dx = dx, 1.0 / dx
     x_old = np.array([[0.5, y0 + 0.005 * dx, 0.5]], np.float32)  # STOP_GAP above the sheet
     x_new = x_old + np.array([[0.5 * dx, -0.01 * dx, 0.0]], np.float32)
-    out = wp.zeros(1, dtype=wp.vec3, device="cpu")
-    hit = wp.zeros(1, dtype=wp.int32, device="cpu")
-    wp.launch(_stop_crossing, 1, inputs=[colliders.arrays, g, wp.array(x_old, dtype=wp.vec3), wp.array(x_new, dtype=wp.vec3),
-                                         dt, wp.vec3(0.0, 1.0, 0.0), out, hit], device="cpu")
-    x = out.numpy()[0]
-    assert hit.numpy()[0] == 1
+    out, hit = _stop_at_sheet(sm.SheetCollider(size=(0.8, 0.8), center=(0.5, y0, 0.5)), dx, dt, x_old, x_new)
+    x = out[0]
+    assert hit[0] == 1
     # on its own side, and no closer than STOP_GAP less float32 round-off (1e-7 m here)
     assert x[1] - y0 > 0.004 * dx, x
     # the backed-off ray stops it 1/3 cell along (0.02 cells of back-off over a 0.03-cell
