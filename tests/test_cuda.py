@@ -75,7 +75,7 @@ def test_kernels_compile_for_cuda_without_a_gpu():
     # the oldest architecture only, to keep this test's NVRTC time in bounds.
     kernels = [(k, ARCHS) for k in [p2g_kernel(name, cpic) for name in PASSES for cpic in (False, True)]
                + [g2p_kernel(sparse, cpic) for sparse in (False, True) for cpic in (False, True)]]
-    kernels += [(p2g_slow_kernel(), ARCHS[:1])]  # a time step per level's scatter, every model
+    kernels += [(p2g_slow_kernel(True), ARCHS[:1])]  # a time step per level's scatter, CPIC, every model
     for model in ALL_MODELS:
         kernels += [(p2g_kernel("sparse", True, (model,)), ARCHS[:1]),
                     (g2p_kernel(True, True, (model,)), ARCHS[:1])]

@@ -136,7 +136,7 @@ class MPMSolver:
         kernels = [reset_reach, grid_update]
         kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
         kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
-        kernels += [p2g_slow_kernel(self.models)] if self.slow is not None else []
+        kernels += [p2g_slow_kernel(self.cpic, self.models)] if self.slow is not None else []
         return kernels
 
     def p2g_passes(self) -> list[tuple[str, Grid]]:
@@ -277,7 +277,8 @@ class MPMSolver:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
                 if self.slow.may_be_near():  # S chosen again
                     self.sort_by_cell(state)
-                self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models)
+                self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models, self.cpic,
+                                  self.grid.color, self._cmask)
         self._dt.fill_(dt)
         self._dt_host = dt
         self._signals.reset()
@@ -491,8 +492,7 @@ class MPMSolver:
         keep = self.slow is not None and (self.slow.open or (keep_slow and not self.slow.may_be_near()))
         near, first = None, self.slow_count if keep else 0
         if self.slow is not None and not keep and self.choose_slow:  # the slow set chosen again
-            near = self.slow.grow_near(state, self.refiner.region_cells, self.grid.color, self.colliders is not None,
-                                       (0, state.count), SORT_HALO)
+            near = self.slow.grow_near(state, self.refiner.region_cells, (0, state.count), SORT_HALO)
             self.slow.drift = 0.0
         self._sorted, n_slow = sort_by_cell(state, self.grid.spec, self.refiner is not None, self.launcher,
                                             self._sorted, near, first)

@@ -1,8 +1,7 @@
 """A time step per level: the slow set (docs/method.md, "A time step per level").
 
 In adaptive mode with ``time_steps = "per_level"`` the level-0 particles far from
-everything fine (the refined region, the level-1 particles, the colliders' bands)
-form the slow set S. S takes one coarse step DT = k dt while every other particle
+everything fine (the refined region, the level-1 particles) form the slow set S. S takes one coarse step DT = k dt while every other particle
 (the fast set F) takes k substeps of dt, the fine CFL step. The temporal interface is
 between particles of the coarse grid, so the level interface is untouched.
 
@@ -26,8 +25,10 @@ substeps is u + T (f^S / m^S + g): original mode's update with step T.
 
 Who is slow is decided when the particles are sorted (they are sorted by class, so S is
 one range): a level-0 particle whose cell is farther than SORT_HALO cells from the
-*core* (region cells, cells holding level-1 particles) and outside a collider's node band
-grown by SORT_HALO - GUARD_HALO cells (``SlowSet.grow_near``). S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
+*core* (region cells, cells holding level-1 particles; ``SlowSet.grow_near``). Near a
+static collider S takes CPIC's masks at the open (the compatible nodes of its frozen
+positions) and its G2P at the close casts the whole step's path, as original mode does
+with a step T. S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
 stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
 shares a node with a level-1 particle's overlap scatter or reaches a fine node a
 level-1 particle gathers from. The solver adds up how far the particles can have moved
@@ -46,10 +47,10 @@ import numpy as np
 import warp as wp
 from scipy import ndimage
 
-from .colliders import ColorField
+from .colliders import ALL_NODES, ColorField, node_bit
 from .grid import GridSpec, dense_node_index
 from .materials import ALL_MODELS, MaterialParams, dispatch
-from .p2g import record_reach
+from .p2g import own_side_mask, record_reach
 from .parallel import (CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums,
                        reset_reach)
 from .segments import Signals
@@ -90,24 +91,33 @@ def keep_slow_share(slow: SlowNodes, n: int, vi: wp.vec3):
             slow.p[n] = ms * vi
 
 
-def _make_p2g_slow(models: tuple[int, ...]):
+def _make_p2g_slow(cpic: bool, models: tuple[int, ...]):
     particle_stress = dispatch(models).particle_stress
 
-    @variant("p2g_slow", models=models)
+    @variant("p2g_slow", cpic, models=models)
     def p2g_slow(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
-                 m: wp.array(dtype=float), p: wp.array(dtype=wp.vec3), f: wp.array(dtype=wp.vec3), reach: Reach):
-        # S at a block's open: Eq. 8's mass and APIC momentum, Eq. 10's force per unit time
+                 color: ColorField, cmask: wp.array(dtype=wp.int32), m: wp.array(dtype=float),
+                 p: wp.array(dtype=wp.vec3), f: wp.array(dtype=wp.vec3), reach: Reach):
+        # S at a block's open: Eq. 8's mass and APIC momentum, Eq. 10's force per unit time;
+        # near a collider only onto the nodes on its side (CPIC), the mask kept for the close
         q = wp.tid() + first
         st = dense_stencil(g, s.x[q])
         tau = wp.static(particle_stress)(materials[s.material[q]], s.F, s.history, q, s.C[q])
         force = (-s.volume[q] * 4.0 * g.inv_dx * g.inv_dx) * tau
         affine = s.mass[q] * s.C[q]
         mv = s.mass[q] * s.v[q]
+        mask = ALL_NODES
+        if wp.static(cpic):
+            if s.surface_body[q] >= 0:
+                mask = own_side_mask(s.surface_point[q], s.surface_side[q], s.surface_body[q], s.x[q], s.level[q],
+                                     color, g, st, cmask, q)
         record_reach(g, st, reach)
         for i in range(3):
             for j in range(3):
                 for k in range(3):
                     w = weight_at(st, i, j, k)
+                    if wp.static(cpic):
+                        w = w * node_bit(mask, i, j, k)
                     n = dense_node_at(g, st, i, j, k)
                     d = offset_at(g, st, i, j, k)
                     wp.atomic_add(p, n, w * (mv + affine * d))
@@ -118,8 +128,8 @@ def _make_p2g_slow(models: tuple[int, ...]):
 
 
 @functools.cache
-def p2g_slow_kernel(models: tuple[int, ...] = ALL_MODELS):
-    return _make_p2g_slow(models)
+def p2g_slow_kernel(cpic: bool, models: tuple[int, ...] = ALL_MODELS):
+    return _make_p2g_slow(cpic, models)
 
 
 @wp.kernel
@@ -151,19 +161,6 @@ def cell_of(g: GridSpec, x: wp.vec3):
 
 
 @wp.kernel
-def mark_banded_cells(g: GridSpec, color: ColorField, banded: wp.array3d(dtype=wp.int32)):
-    # cells with a corner node in a collider's node band (NODE_BAND cells)
-    i, j, k = wp.tid()
-    v = int(0)
-    for a in range(2):
-        for b in range(2):
-            for e in range(2):
-                if color.body[dense_node_index(g, i + a, j + b, e + k)] >= 0:
-                    v = 1
-    banded[i, j, k] = v
-
-
-@wp.kernel
 def mark_level1_cells(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
                       core: wp.array(dtype=wp.int32)):
     q = wp.tid() + first
@@ -181,7 +178,7 @@ class SlowSet:
         cells = tuple(d - 1 for d in coarse.dims)
         self.cells = cells
         self._core = wp.zeros(cells, dtype=wp.int32, device=device)
-        self._fixed = None  # ((region, halo) key, near from the region and colliders alone)
+        self._fixed = None  # ((region, halo) key, near from the region alone)
         self.near = wp.zeros(cells, dtype=wp.int32, device=device)  # the core grown by a halo
         n = coarse.capacity
         self.nodes = SlowNodes()
@@ -202,27 +199,17 @@ class SlowSet:
     def open(self) -> bool:
         return self.nodes.on != 0
 
-    def grow_near(self, state: ParticleState, region: np.ndarray, color: ColorField, colliders: bool,
-                  level1: tuple[int, int], halo: int) -> wp.array:
-        """``near`` = the core (region, level-1 cells) grown by ``halo`` cells (a cube),
-        and the cells with a corner node in a collider's node band grown by the drift a
-        re-sort allows (a particle outside is more than NODE_BAND - sqrt(3)/2 = 3.6 cells
-        from a surface, so a slow particle never comes within PARTICLE_BAND = 2.6 cells,
-        where CPIC starts, and never carries a collider's color): a flag per coarse cell,
-        flat. Grown on the host with scipy's maximum filter, at sorts only: the part
-        from the region (``region``, host flags per cell) and the static colliders once
-        per region, the level-1 cells' part over their bounding box only (the whole
-        grid cost 14 ms a sort at the paper panel's 290k cells)."""
+    def grow_near(self, state: ParticleState, region: np.ndarray, level1: tuple[int, int], halo: int) -> wp.array:
+        """``near`` = the core (region, level-1 cells) grown by ``halo`` cells (a cube): a
+        flag per coarse cell, flat. Grown on the host with scipy's maximum filter, at
+        sorts only: the region's part (``region``, host flags per cell) once per region,
+        the level-1 cells' part over their bounding box only (the whole grid cost 14 ms
+        a sort at the paper panel's 290k cells). Colliders' bands are not excluded: S
+        near a static collider takes CPIC's masks at its open and casts its whole
+        step's path at its close, as original mode does with that step."""
         key = (hash(region.tobytes()), halo)  # ~0.1 ms; the region changes with set_region only
         if self._fixed is None or self._fixed[0] != key:
-            banded = np.zeros(self.cells, dtype=np.int32)
-            if colliders:
-                wp.launch(mark_banded_cells, self.cells, inputs=[self.coarse.spec, color, self._core],
-                          device=self.device)
-                banded = self._core.numpy()
-            drift = SORT_HALO - GUARD_HALO
-            fixed = (ndimage.maximum_filter(region.astype(np.uint8), size=2 * halo + 1, mode="constant") > 0) | \
-                (ndimage.maximum_filter(banded, size=2 * drift + 1, mode="constant") > 0)
+            fixed = ndimage.maximum_filter(region.astype(np.uint8), size=2 * halo + 1, mode="constant") > 0
             self._fixed = (key, fixed)
         self._core.zero_()
         self.launcher.launch(mark_level1_cells, level1[1], [state.x, state.level, self.coarse.spec,
@@ -238,8 +225,11 @@ class SlowSet:
         self.near.assign(near.astype(np.int32))
         return self.near.flatten()
 
-    def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models) -> None:
-        """Open a block: S onto its node arrays (threads into private sums, added in part order)."""
+    def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models, cpic: bool,
+                color: ColorField, cmask: wp.array) -> None:
+        """Open a block: S onto its node arrays (threads into private sums, added in part order);
+        with ``cpic``, each S particle near a collider onto its side's nodes (``color``, the
+        coarse grid's), its mask into ``cmask`` for the close's G2P."""
         s = self.nodes
         s.m.zero_()
         s.p.zero_()
@@ -251,9 +241,9 @@ class SlowSet:
         def inputs(part, first, count):
             f = s.f if part == 0 else self._pf[(part - 1) * stride:part * stride]
             pp, pm = private.parts[part]
-            return [state.arrays(), materials, g, pm, pp, f, private.reach[part]]
+            return [state.arrays(), materials, g, color, cmask, pm, pp, f, private.reach[part]]
 
-        self.launcher.launch(p2g_slow_kernel(models), slow[1], inputs, start=slow[0], label="P2G coarse (slow)",
+        self.launcher.launch(p2g_slow_kernel(cpic, models), slow[1], inputs, start=slow[0], label="P2G coarse (slow)",
                              min_range=MIN_TRANSFER_RANGE)
         if private.extra > 0:
             chunk = CPU_NODE_CHUNK  # only CPU parts have extra sums
