@@ -1,9 +1,10 @@
 """A time step per level: the slow set (docs/method.md, "A time step per level").
 
 In adaptive mode with ``time_steps = "per_level"`` the level-0 particles far from
-everything fine (the refined region, the level-1 particles) form the slow set S. S takes one coarse step DT = k dt while every other particle
-(the fast set F) takes k substeps of dt, the fine CFL step. The temporal interface is
-between particles of the coarse grid, so the level interface is untouched.
+everything fine (the refined region, the level-1 particles) form the slow set S. S
+takes one coarse step DT = k dt while every other particle (the fast set F) takes k
+substeps of dt, the fine CFL step. The temporal interface is between particles of the
+coarse grid, so the level interface is untouched.
 
 One coarse step of S, a block:
 
@@ -28,8 +29,8 @@ one range): a level-0 particle whose cell is farther than SORT_HALO cells from t
 *core* (region cells, cells holding level-1 particles; ``SlowSet.grow_near``). Near a
 static collider S takes CPIC's masks at the open (the compatible nodes of its frozen
 positions) and its G2P at the close casts the whole step's path, as original mode does
-with a step T. S must stay at least GUARD_HALO = 3 cells from the core: two particles' coarse
-stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
+with a step T. S must stay at least GUARD_HALO = 3 cells from the core: two particles'
+coarse stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
 shares a node with a level-1 particle's overlap scatter or reaches a fine node a
 level-1 particle gathers from. The solver adds up how far the particles can have moved
 since that sort (each substep dt times the fastest fast particle, each step of S its
@@ -48,7 +49,7 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ALL_NODES, ColorField, node_bit
-from .grid import GridSpec, dense_node_index
+from .grid import GridSpec
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .p2g import own_side_mask, record_reach
 from .parallel import (CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums,
