@@ -51,7 +51,7 @@ from .p2g import p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
 from .segments import Graphs, SegmentStart, Signals, buffer_key
-from .sorting import level_ranges, sort_by_cell, span
+from .sorting import level_ranges, sort_by_cell
 from .state import FIELDS, ParticleState
 from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
@@ -424,8 +424,8 @@ class MPMSolver:
             kernel = g2p_kernel(g.sparse, self.cpic, self.models)
             common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask,
                       self.grid.spec, self.grid.color, self._on_fine]
-            # the fine pass visits every fast particle: on_fine marks the level-0 ones it moves
-            for site, (first, count) in enumerate([span(self._ranges[None])] if g.sparse else self._ranges[g.level]):
+            # fine: a launch per level's fast range (on_fine marks the level-0 particles it moves)
+            for site, (first, count) in enumerate(self._ranges[None] if g.sparse else self._ranges[g.level]):
                 self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
                                      start=first, label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 

@@ -69,11 +69,6 @@ def level_ranges(state: ParticleState, levels: list[int], two_levels: bool, scra
     return ranges
 
 
-def span(ranges: list[tuple[int, int]]) -> tuple[int, int]:
-    """One range (first, count) from the first range's start to the last one's end."""
-    return ranges[0][0], ranges[-1][0] + ranges[-1][1] - ranges[0][0]
-
-
 @wp.kernel
 def _cell_keys(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), by_level: int,
                g: GridSpec, near: wp.array(dtype=wp.int32), slow_first: int, origin: int,
