@@ -68,6 +68,7 @@ class SurfaceField:
     volume: wp.array(dtype=float)  # sum_p w_ip V_p J_p: the occupied volume at the node
     smooth: wp.array(dtype=float)  # the same, filtered once over the 27 neighbours
     near: wp.array3d(dtype=wp.int32)  # coarse cells near the refined region: who scatters
+    read: wp.array3d(dtype=wp.int32)  # coarse cells whose nodes a splitting parent reads: smoothed
 
 
 @wp.func
@@ -187,6 +188,9 @@ def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField):
     # particles' mean, not their noise; a wider filter shrinks curved surfaces
     n = wp.tid() + first
     c = node_coords(g, n)
+    shape = wp.vec3i(f.read.shape[0], f.read.shape[1], f.read.shape[2]) - wp.vec3i(1)
+    if f.read[wp.min(c[0], shape[0]), wp.min(c[1], shape[1]), wp.min(c[2], shape[2])] == 0:
+        return  # no parent reads it (family_shifts); left as it was
     acc = float(0.0)
     for a in range(3):
         for b in range(3):

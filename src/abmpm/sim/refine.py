@@ -200,6 +200,7 @@ class Refiner:
         self.surface.volume = wp.zeros(nodes, dtype=float, device=device)
         self.surface.smooth = wp.zeros(nodes, dtype=float, device=device)
         self.surface.near = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
+        self.surface.read = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
         self._points = wp.HashGrid(64, 64, 64, device=device) if reconstruct else None  # neighbours: who is on top
         self._shift = wp.zeros(1, dtype=wp.vec3, device=device)
         self.reconstruct_seconds = 0.0  # CPU time spent reconstructing (for the benchmark)
@@ -218,6 +219,10 @@ class Refiner:
             # who scatters for Eq. 16: particles within the stencil reach (2 cells) of
             # a node that a splitting parent reads (1 cell beyond the region)
             self.surface.near.assign(ndimage.binary_dilation(self.region_cells, iterations=3).astype(np.int32))
+            # the nodes a parent's occupied fraction reads (its stencil, and that of a point up
+            # to a cell away from it): up to 3 cells from its own in any direction
+            cube = np.ones((3, 3, 3), dtype=bool)
+            self.surface.read.assign(ndimage.binary_dilation(self.region_cells, cube, iterations=3).astype(np.int32))
         wanted = np.zeros(self.wanted.shape, dtype=np.int32)
         idx = np.argwhere(self.region_cells)
         if len(idx):
