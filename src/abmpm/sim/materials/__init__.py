@@ -15,8 +15,10 @@ scene uses: :func:`dispatch`).
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import warp as wp
@@ -77,7 +79,24 @@ def uses_deformation_gradient(name: str) -> bool:
 # --------------------------------------------------------------------------- dispatch
 
 
-@wp.func
+# The models' source, in the names of the functions that dispatch to them. Warp's kernel
+# cache keys a kernel by a hash of the code it reaches, but a ``wp.static`` that depends on
+# a loop variable (the loops over the models below) is resolved only when the kernel is
+# built, after that hash is taken: the model functions it reaches are left out of it, and a
+# kernel compiled before an edit of a model (or of ``common.py``) was loaded again after
+# it. Found when a new polar decomposition changed nothing measurable: the kernels still
+# called the SVD.
+_SOURCE_DIGEST = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(Path(__file__).parent.glob("*.py")))
+                                ).hexdigest()[:10]
+
+
+def _dispatching(f, name: str | None = None):
+    # a Warp function whose name carries the models' source digest (above)
+    f.__qualname__ = f.__name__ = (name or f.__name__) + "_" + _SOURCE_DIGEST
+    return wp.func(f)
+
+
+@_dispatching
 def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: float):
     """tau = J sigma of the particle's model (used by the force of paper Eq. 9)."""
     for i in range(wp.static(len(REGISTRY))):
@@ -86,7 +105,7 @@ def kirchhoff_stress(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: flo
     return wp.mat33(0.0)
 
 
-@wp.func
+@_dispatching
 def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: float, dt: float):
     """F <- (I + dt C) F (paper Eq. 7), then the model's return mapping (Eqs. 13-14)."""
     for i in range(wp.static(len(REGISTRY))):
@@ -98,7 +117,7 @@ def update_deformation(mat: MaterialParams, F: wp.mat33, C: wp.mat33, history: f
     return out
 
 
-@wp.func
+@_dispatching
 def carries_F(mat: MaterialParams):
     """Whether the particle's model keeps a deformation gradient (a solid: its particles
     stay on their F-deformed lattice); False for the models that keep only J."""
@@ -134,8 +153,7 @@ ALL_MODELS = tuple(range(len(REGISTRY)))
 def _func(f, name: str, models: tuple[int, ...]):
     # one Warp function per model set: a distinct name, or Warp would take the
     # closures of different sets for overloads of one function
-    f.__qualname__ = f.__name__ = name + "_" + "_".join(map(str, models))
-    return wp.func(f)
+    return _dispatching(f, name + "_" + "_".join(map(str, models)))
 
 
 @functools.cache
