@@ -149,9 +149,10 @@ def test_profile_times_every_transfer_by_phase(monkeypatch):
     wall = time.perf_counter() - t0
     steps = prof.launches[("substep", "grid update coarse")]
     assert steps >= 4
-    for name in ("P2G coarse (level 0)", "P2G coarse (level 1, overlap)", "G2P coarse", "G2P fine", "grid update fine"):
+    for name in ("P2G coarse (level 0)", "P2G coarse (level 1, overlap)", "G2P coarse", "grid update fine"):
         assert prof.launches[("substep", name)] == steps, name
-    assert prof.launches[("substep", "P2G fine")] == 2 * steps  # one launch per level's range
+    for name in ("P2G fine", "G2P fine"):
+        assert prof.launches[("substep", name)] == 2 * steps, name  # one launch per level's range
     assert prof.launches[("refinement", "(all)")] >= steps // 4 and prof.launches[("frame end", "(all)")] == 1
     rows = profile_rows(prof, steps, wall)
     assert abs(sum(r["share"] for r in rows if r["section"] == "substep" or r["kernel"] in ("(all)", "(other host work)"))
