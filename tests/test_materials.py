@@ -80,6 +80,35 @@ def test_fixed_corotated_uniaxial_stress_matches_closed_form():
     assert np.allclose(tau.numpy()[0], expected, rtol=1e-4, atol=1e-2)
 
 
+def test_fixed_corotated_stress_matches_the_float64_polar_decomposition():
+    # tau = 2 mu (F - R) F^T + lam (J - 1) J I with R the polar factor of F, computed in
+    # float64 by numpy's SVD, for rotated stretches from nearly flat (det F 0.03) to
+    # strongly stretched (singular values 0.3-3). Tolerance: 1e-5 of the largest entry,
+    # float32 round-off of a product of three F's; the float32 SVD's U V^T (the stress
+    # before the polar iteration) misses it by up to 2e-2 of mu on nearly flat F.
+    E, nu = 1e5, 0.3
+    mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    rng = np.random.default_rng(3)
+    n = 2000
+    Q = np.linalg.qr(rng.standard_normal((n, 3, 3)))[0]
+    Q *= np.sign(np.linalg.det(Q))[:, None, None]  # rotations
+    P = np.linalg.qr(rng.standard_normal((n, 3, 3)))[0]
+    sig = np.exp(rng.uniform(np.log(0.3), np.log(3.0), (n, 3)))
+    sig[: n // 4, 2] = rng.uniform(0.03, 0.1, n // 4) / (sig[: n // 4, 0] * sig[: n // 4, 1])  # nearly flat
+    F = (Q @ P) @ (sig[:, :, None] * np.transpose(P, (0, 2, 1)))
+    init_warp()
+    mat = wp.array([material_params(sm.Elastic(name="e", youngs_modulus=E, poisson_ratio=nu))], dtype=MaterialParams, device="cpu")
+    tau = wp.zeros(n, dtype=wp.mat33, device="cpu")
+    wp.launch(_stress, dim=n, inputs=[mat, wp.array(F.astype(np.float32), dtype=wp.mat33)], outputs=[tau], device="cpu")
+    F32 = F.astype(np.float32).astype(np.float64)
+    U, s, Vt = np.linalg.svd(F32)
+    R = U @ Vt
+    J = np.linalg.det(F32)
+    expected = 2 * mu * (F32 - R) @ np.transpose(F32, (0, 2, 1)) + (lam * (J - 1) * J)[:, None, None] * np.eye(3)
+    err = np.abs(tau.numpy() - expected).max(axis=(1, 2)) / np.abs(expected).max(axis=(1, 2))
+    assert err.max() < 1e-5, err.max()
+
+
 def test_viscoelastic_deviatoric_strain_relaxes_exponentially():
     tau_relax, dt, steps = 0.05, 1e-3, 50
     F0 = np.diag([1.2, 0.9, 1.0])
