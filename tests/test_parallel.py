@@ -155,6 +155,9 @@ def test_profile_times_every_transfer_by_phase(monkeypatch):
         assert prof.launches[("substep", name)] == 2 * steps, name  # one launch per level's range
     assert prof.launches[("refinement", "(all)")] >= steps // 4 and prof.launches[("frame end", "(all)")] == 1
     rows = profile_rows(prof, steps, wall)
+    # each CPU part of a launch is timed on its own: the rows say how evenly the threads shared it
+    assert {k[2] for k in prof.parts if k[:2] == ("substep", "G2P fine")} == {0, 1}
+    assert all(r["imbalance"] >= 1.0 for r in rows)
     assert abs(sum(r["share"] for r in rows if r["section"] == "substep" or r["kernel"] in ("(all)", "(other host work)"))
                - 1.0) < 1e-3
     assert all(r["ms_per_step"] > 0 for r in rows if r["kernel"] != "(other host work)")

@@ -99,25 +99,34 @@ def jelly_scene(dx: float = 1 / 30, factor: int = 3):
 ADAPTIVE_CASES = {"narrow slit": slit_scene, "jelly on crossed blades": jelly_scene}
 
 
+def _imbalance(profile, sec: str, name: str) -> float:
+    # the busiest CPU part's time over the parts' mean (1: the threads shared the pass
+    # evenly; 2 on two threads: one thread did it all)
+    t = [v for (s, k, _), v in profile.parts.items() if (s, k) == (sec, name)]
+    return max(t) * len(t) / sum(t) if len(t) > 1 and sum(t) > 0 else 1.0
+
+
 def profile_rows(profile, steps: int, wall: float) -> list[dict]:
     """A KernelProfile as rows (section, kernel, ms per step, launches per step, share
-    of the wall time), largest first; "(other host work)" is what no section timed."""
+    of the wall time, imbalance of its CPU parts), largest first; "(other host work)"
+    is what no section timed."""
     rows = [{"section": sec, "kernel": name, "ms_per_step": 1e3 * t / steps,
-             "launches_per_step": profile.launches[(sec, name)] / steps, "share": t / wall}
+             "launches_per_step": profile.launches[(sec, name)] / steps, "share": t / wall,
+             "imbalance": _imbalance(profile, sec, name)}
             for (sec, name), t in profile.seconds.items()]
     timed = sum(r["ms_per_step"] for r in rows if r["section"] == "substep" or r["kernel"] == "(all)")
     rows.append({"section": "", "kernel": "(other host work)", "ms_per_step": 1e3 * wall / steps - timed,
-                 "launches_per_step": 0.0, "share": 1.0 - timed * steps / (1e3 * wall)})
+                 "launches_per_step": 0.0, "share": 1.0 - timed * steps / (1e3 * wall), "imbalance": 1.0})
     rows.sort(key=lambda r: -r["ms_per_step"])
     return [{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in rows]
 
 
 def print_profile(title: str, rows: list[dict]) -> None:
-    print(f"  {title}: ms per step by phase and kernel")
+    print(f"  {title}: ms per step by phase and kernel (imbalance: the busiest thread's share over the mean)")
     for r in rows:
         if r["share"] >= 0.005:
             print(f"    {r['section']:<12} {r['kernel']:<34} {r['ms_per_step']:8.3f} ms  "
-                  f"{r['launches_per_step']:5.2f} launches  {100 * r['share']:5.1f}%")
+                  f"{r['launches_per_step']:5.2f} launches  {100 * r['share']:5.1f}%  imbalance {r.get('imbalance', 1.0):4.2f}")
 
 
 def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
@@ -272,7 +281,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
     ap.add_argument("--profile", action="store_true",
-                    help="adaptive suite: time every kernel and phase of the step (ms per step)")
+                    help="adaptive suite: time every kernel and phase of the step (ms per step) and how "
+                         "evenly the CPU threads share each (busiest thread over the mean)")
     args = ap.parse_args(argv or [])
 
     device = choose_device(args.device)

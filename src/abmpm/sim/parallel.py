@@ -129,6 +129,9 @@ class KernelProfile:
     seconds: Counter = field(default_factory=Counter)
     launches: Counter = field(default_factory=Counter)
     section: str = "substep"
+    # (section, kernel, part): seconds of each CPU part's own run, to see whether the
+    # threads share a pass evenly (``abmpm bench --profile``'s imbalance column)
+    parts: Counter = field(default_factory=Counter)
 
 
 def _same_arguments(a: list, b: list) -> bool:
@@ -196,18 +199,26 @@ class Launcher:
             return 0
         if self.profile is not None:
             t0 = time.perf_counter()
-            parts = self._launch(kernel, n, inputs, start, min_range, (label, site))
-            self._record((self.profile.section, label or kernel.key), t0)
+            times = [0.0] * self.threads
+            parts = self._launch(kernel, n, inputs, start, min_range, (label, site), times)
+            key = (self.profile.section, label or kernel.key)
+            self._record(key, t0)
+            for part in range(parts):
+                self.profile.parts[(*key, part)] += times[part]
             return parts
         return self._launch(kernel, n, inputs, start, min_range, (label, site))
 
-    def _launch(self, kernel, n: int, inputs, start: int, min_range: int, site: tuple) -> int:
+    def _launch(self, kernel, n: int, inputs, start: int, min_range: int, site: tuple,
+                times: list[float] | None = None) -> int:
         parts = self.ranges(n, start, min_range)
         make = inputs if callable(inputs) else (lambda part, first, count: inputs)
         args = [[first, *make(part, first, count)] for part, (first, count) in enumerate(parts)]
 
         def run(part: int) -> None:
+            t0 = time.perf_counter()
             self._run(kernel, parts[part][1], args[part], (kernel, site, part))
+            if times is not None:  # each part's own time (profiling)
+                times[part] = time.perf_counter() - t0
 
         # The first launch of a kernel (for a generic one, of each argument type)
         # compiles or specialises it: that must not happen on two threads at once.
