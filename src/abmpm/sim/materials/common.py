@@ -63,9 +63,9 @@ def polar_rotation(F: wp.mat33):
     X <- (g X + X^-T / g) / 2 with Higham's Frobenius-norm scaling g = (|X^-1| / |X|)^1/2
     (N. J. Higham, "Computing the polar decomposition, with applications", SIAM J. Sci.
     Stat. Comput. 7, 1986). It converges quadratically: 3 iterations for strains of a few
-    percent, 4-5 for strains of tens of percent, with a float32 stopping test; against float64's polar factor its float32 result is off by
-    ~2e-7 where ``wp.svd3``'s U V^T is off by up to 2e-2 (docs/benchmarks.md), at a third
-    of the cost near F = I."""
+    percent, 4-5 for strains of tens of percent, with a float32 stopping test. Against
+    float64's polar factor its float32 result is off by ~2e-7 where ``wp.svd3``'s U V^T is
+    off by up to 2e-2 (docs/benchmarks.md), at a third of the cost near F = I."""
     X = F
     for _ in range(POLAR_MAX_ITERATIONS):
         Xi = wp.inverse(X)
