@@ -201,6 +201,7 @@ class Refiner:
         self.surface.smooth = wp.zeros(nodes, dtype=float, device=device)
         self.surface.near = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
         self.surface.read = wp.zeros(cells if reconstruct else (1, 1, 1), dtype=wp.int32, device=device)
+        self.read_box = (wp.vec3i(0, 0, 0), wp.vec3i(0, 0, 0))  # set_region: the nodes smooth_surface_volume visits
         self._points = wp.HashGrid(64, 64, 64, device=device) if reconstruct else None  # neighbours: who is on top
         self._shift = wp.zeros(1, dtype=wp.vec3, device=device)
         self.reconstruct_seconds = 0.0  # CPU time spent reconstructing (for the benchmark)
@@ -222,7 +223,14 @@ class Refiner:
             # the nodes a parent's occupied fraction reads (its stencil, and that of a point up
             # to a cell away from it): up to 3 cells from its own in any direction
             cube = np.ones((3, 3, 3), dtype=bool)
-            self.surface.read.assign(ndimage.binary_dilation(self.region_cells, cube, iterations=3).astype(np.int32))
+            read = ndimage.binary_dilation(self.region_cells, cube, iterations=3)
+            self.surface.read.assign(read.astype(np.int32))
+            # the nodes smooth_surface_volume visits: every node whose cell (the node's
+            # coordinates, clamped to the last cell) is read
+            idx = np.argwhere(read)
+            lo = idx.min(0) if len(idx) else np.zeros(3, dtype=int)
+            hi = np.minimum(idx.max(0) + 1, np.array(self.coarse.dims) - 1) if len(idx) else lo - 1
+            self.read_box = (wp.vec3i(*(int(v) for v in lo)), wp.vec3i(*(int(v) for v in hi - lo + 1)))
         wanted = np.zeros(self.wanted.shape, dtype=np.int32)
         idx = np.argwhere(self.region_cells)
         if len(idx):
@@ -275,7 +283,9 @@ class Refiner:
                 self.launcher.launch(add_surface_sums, -(-self.coarse.node_count // chunk),
                                      [self.coarse.node_count, chunk, private.sums, f], min_range=64)
                 self.launcher.launch(reset_reach, private.extra + 1, [private.bounds])
-            self.launcher.launch(smooth_surface_volume, self.coarse.node_count, [self.coarse.spec, self.surface])
+            box_lo, box_shape = self.read_box
+            self.launcher.launch(smooth_surface_volume, box_shape[0] * box_shape[1] * box_shape[2],
+                                 [self.coarse.spec, self.surface, box_lo, box_shape])
             self._points.build(state.x[:n], self.coarse.dx)
             if self._shift.shape[0] < n:
                 self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
