@@ -182,15 +182,15 @@ def filter_weight(a: int):
 
 
 @wp.kernel
-def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField, lo: wp.vec3i, shape: wp.vec3i):
+def smooth_surface_volume(first: int, g: GridSpec, f: SurfaceField, lo: wp.vec3i, box: wp.vec3i):
     # (SIDE, 1 - 2 SIDE, SIDE)^3 filter of the node volumes, (1 6 1)/8 per axis: the
     # surface of a disordered material (a fluid that has flowed) follows its
     # particles' mean, not their noise; a wider filter shrinks curved surfaces. One
-    # thread a node of the box [lo, lo + shape) that holds every node a parent reads
+    # thread a node of the box [lo, lo + box) that holds every node a parent reads
     # (``Refiner.read_box``), not of the whole coarse grid (111k nodes on the paper
     # hourglass, ~2 ms a call for threads that returned at once)
     t = wp.tid() + first
-    c = lo + wp.vec3i(t // (shape[1] * shape[2]), (t // shape[2]) % shape[1], t % shape[2])
+    c = lo + wp.vec3i(t // (box[1] * box[2]), (t // box[2]) % box[1], t % box[2])
     n = node_index(g, c[0], c[1], c[2])
     shape = wp.vec3i(f.read.shape[0], f.read.shape[1], f.read.shape[2]) - wp.vec3i(1)
     if f.read[wp.min(c[0], shape[0]), wp.min(c[1], shape[1]), wp.min(c[2], shape[2])] == 0:
