@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from abmpm.bench import run_bench
-from abmpm.bench.scaling import BASE, BOX, LENGTHS, REGIONS, sloshing_tank
+from abmpm.bench.scaling import BASE, BOX, LENGTHS, REGIONS, per_level_floor, sloshing_tank
 from abmpm.simulation import Simulation
 
 
@@ -35,6 +35,17 @@ def test_the_tank_with_a_hole_refines_the_same_small_region_at_every_length():
     assert len(regions[0]) < 384 / 2
 
 
+def test_the_floor_counts_each_particle_at_its_own_steps():
+    # 6k slow particles at original's step, 4k fast ones at two substeps a step, against
+    # original's 9k particles: (6k + 2 x 4k) / 9k
+    row = {"original": {"particles": 9000, "steps_per_sim_s": 1000.0},
+           "per_level": {"particles": 10000, "slow": 6000, "steps_per_sim_s": 2000.0}}
+    assert per_level_floor(row) == pytest.approx(14000 / 9000)
+    # no slow set: every particle at the fine step
+    row["per_level"]["slow"] = 0
+    assert per_level_floor(row) == pytest.approx(20000 / 9000)
+
+
 @pytest.mark.slow
 def test_the_scaling_suite_runs_end_to_end(tmp_path, monkeypatch):
     import abmpm.bench.scaling as scaling
@@ -55,3 +66,4 @@ def test_the_scaling_suite_runs_end_to_end(tmp_path, monkeypatch):
     assert json.loads(out.read_text())["scaling"][0]["length_m"] == pytest.approx(BASE)
     assert out.with_suffix(".png").stat().st_size > 0
     assert np.isfinite(row["adaptive_over_original"])
+    assert row["per_level_floor"] == pytest.approx(per_level_floor(row), abs=1e-3) and row["per_level_floor"] >= 1.0

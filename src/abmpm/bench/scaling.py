@@ -93,6 +93,18 @@ def time_tanks(length: int, seconds: float, device: str, region: str = "box") ->
     return out
 
 
+def per_level_floor(row: dict) -> float:
+    """What per level / original would read if every particle-step cost what an original
+    one does: (n_S + s n_F) / n_O, with n_S the slow particles (one coarse step each), n_F
+    the other particles of the per-level run (s substeps per coarse step, s = its substeps
+    over original's steps) and n_O original's particles, the end counts of the run. No
+    implementation of a time step per level goes below it (docs/method.md, "What the
+    scaling suite's goal asks, by arithmetic")."""
+    o, pl = row["original"], row["per_level"]
+    s = pl["steps_per_sim_s"] / o["steps_per_sim_s"]
+    return (pl["slow"] + s * (pl["particles"] - pl["slow"])) / o["particles"]
+
+
 def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path | None = None,
                 regions=REGIONS) -> list[dict]:
     """Every region and length in every mode, printed as it finishes; with ``plot`` a PNG
@@ -105,12 +117,14 @@ def run_scaling(device: str, seconds: float = 0.25, lengths=LENGTHS, plot: Path 
         row["finest_over_adaptive"] = round(f / a, 3)
         row["per_level_over_original"] = round(pl / o, 3)
         row["finest_over_per_level"] = round(f / pl, 3)
+        row["per_level_floor"] = round(per_level_floor(row), 3)
         rows.append(row)
         print(f"tank {row['length_m']} m, {region}: wall s per simulated s original {o}, adaptive {a}, per level {pl}, "
               f"finest {f} (particles {' / '.join(str(row[m]['particles']) for m in MODES)}; steps per simulated s "
               f"{' / '.join(str(row[m]['steps_per_sim_s']) for m in MODES)}; slow particles at the end "
               f"{row['per_level']['slow']}) -> adaptive / original {row['adaptive_over_original']}, per level / "
-              f"original {row['per_level_over_original']}, finest / per level {row['finest_over_per_level']}",
+              f"original {row['per_level_over_original']} (at original's cost a particle-step: "
+              f"{row['per_level_floor']}), finest / per level {row['finest_over_per_level']}",
               flush=True)
     if plot is not None:
         plot_scaling(rows, plot)
@@ -129,6 +143,8 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
         x = [r["length_m"] for r in mine]
         for mode in MODES:
             ax.plot(x, [r[mode]["wall_per_sim_s"] for r in mine], "o-", label=LABELS[mode])
+        ax.plot(x, [r["per_level_floor"] * r["original"]["wall_per_sim_s"] for r in mine], "k:",
+                label="per level at original's cost a particle-step")
         ax.set_xscale("log", base=2)
         ax.set_yscale("log")
         ax.set_xticks(x, [f"{v:g}" for v in x], minor=False)
