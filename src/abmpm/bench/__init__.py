@@ -127,7 +127,7 @@ def print_profile(title: str, rows: list[dict]) -> None:
         if r["share"] >= 0.005:
             print(f"    {r['section']:<12} {r['kernel']:<34} {r['ms_per_step']:8.3f} ms  "
                   f"{r['launches_per_step']:5.2f} launches  {100 * r['share']:5.1f}%  "
-                  f"imbalance {r.get('imbalance', 1.0):4.2f}")
+                  f"imbalance {r['imbalance']:4.2f}")
 
 
 def time_modes(scene, frames: int, device: str, profile: bool = False) -> dict:
