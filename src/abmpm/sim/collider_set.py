@@ -16,6 +16,7 @@ from .colliders import (
     FAR,
     NODE_BAND,
     NODE_RANGE,
+    PARTICLE_BAND,
     ColliderArrays,
     ColliderBody,
     ColorField,
@@ -23,6 +24,7 @@ from .colliders import (
     face_clearance,
     color_node_range,
 )
+from .face_cells import build_face_cells, no_face_cells
 from .grid import BLOCK_NODES, Grid
 
 # two triangles meeting at more than this are a crease: the plane of node_color.py
@@ -101,6 +103,7 @@ class ColliderSet:
         self.rims = edge_mesh(self.rest, np.concatenate([boundary, creases]), device) if self.static else None
         self.arrays.rims = self.rims.id if self.rims is not None else wp.uint64(0)
         self.arrays.face_clear = self._face_clearance(boundary, device)
+        self.arrays.cells = no_face_cells(device)  # index_faces builds them
         self.time = None
         self._region = {}  # grid id -> node box last colored
         self.set_time(0.0)
@@ -118,6 +121,15 @@ class ColliderSet:
         clear = wp.zeros(n, dtype=float, device=device)
         wp.launch(face_clearance, n, [self.mesh.id, rims.id, clear], device=device)
         return clear
+
+    def index_faces(self, grid: Grid, launcher) -> None:
+        """Static colliders in CPIC mode: per cell of ``grid`` (the coarse grid), the
+        triangles that can be closest to a point in it, for the closest-point queries of
+        the particles of every level (bounded by PARTICLE_BAND coarse cells; ``face_cells.py``).
+        Moving colliders keep the BVH alone (their lists would change every substep)."""
+        if self.static and self.arrays.cpic:
+            cells = [int(d) - 1 for d in grid.dims]
+            self.arrays.cells = build_face_cells(self.mesh, grid.origin, grid.dx, cells, PARTICLE_BAND * grid.dx, launcher)
 
     @property
     def triangle_count(self) -> int:
@@ -259,6 +271,7 @@ def empty_colliders(device) -> ColliderArrays:
     s.bodies = wp.zeros(1, dtype=ColliderBody, device=device)
     s.rims = wp.uint64(0)
     s.face_clear = wp.zeros(1, dtype=float, device=device)
+    s.cells = no_face_cells(device)
     return s
 
 

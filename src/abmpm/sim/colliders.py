@@ -33,6 +33,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 from .boundary import boundary_response
+from .face_cells import NO_LIST, FaceCells, closest_face, face_corners
 from .grid import (
     GridSpec,
     dense_node_index,
@@ -85,6 +86,7 @@ class ColliderArrays:
     bodies: wp.array(dtype=ColliderBody)
     rims: wp.uint64  # static colliders: their rims and creases as segments (0: none, node_color.py)
     face_clear: wp.array(dtype=float)  # per triangle: at least its distance to any rim (node_color.py)
+    cells: FaceCells  # static colliders: per cell, the triangles that can be closest (face_cells.py)
 
 
 @wp.struct
@@ -224,8 +226,8 @@ def near_surface(f: ColorField, g: GridSpec, x: wp.vec3):
 @wp.func
 def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: float, side: wp.vec3):
     """Closest surface point within max_dist (-1 body if none) and the unit direction
-    from it to x. For particles a tight bound prunes the BVH search, which is most of
-    the cost of a particle near a collider.
+    from it to x: a particle's from its cell's list of triangles on static colliders
+    (face_cells.py), else from the BVH, where a tight bound prunes the search.
 
     On the surface itself (closer than ON_SURFACE cells) the direction is float32 noise
     and the face normal stands in. On an open sheet, or a mesh wound inwards, that
@@ -234,20 +236,32 @@ def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: fl
     A zero ``side`` (a node) keeps the face normal as it is."""
     c = Color()
     c.body = -1
-    q = wp.mesh_query_point_no_sign(colliders.mesh, x, max_dist)
-    if q.result:
-        c.surface_point = wp.mesh_eval_position(colliders.mesh, q.face, q.u, q.v)
+    face = int(NO_LIST)
+    point = wp.vec3(0.0)
+    # a particle's query (bounded by PARTICLE_BAND cells, never a node's NODE_BAND): the
+    # per-cell lists give the BVH's answer, cheaper (face_cells.py); far from a surface, as
+    # for a fine node, a cell's list is long and the BVH is the cheaper of the two
+    if colliders.cells.enabled != 0 and max_dist <= colliders.cells.band and max_dist < NODE_BAND * g.dx:
+        face, point = closest_face(colliders.cells, colliders.mesh, x, max_dist)
+    if face == NO_LIST:
+        face = -1
+        q = wp.mesh_query_point_no_sign(colliders.mesh, x, max_dist)
+        if q.result:
+            face = q.face
+            point = wp.mesh_eval_position(colliders.mesh, q.face, q.u, q.v)
+    if face >= 0:
+        c.surface_point = point
         d = x - c.surface_point
         dl = wp.length(d)
         if dl > ON_SURFACE * g.dx:
             c.surface_side = d / dl
         else:
-            c.surface_side = wp.mesh_eval_face_normal(colliders.mesh, q.face)
+            c.surface_side = wp.mesh_eval_face_normal(colliders.mesh, face)
             if wp.dot(c.surface_side, side) < 0.0:
                 c.surface_side = -c.surface_side
-        c.body = colliders.face_body[q.face]
-        c.face = q.face
-        c.flat = int(wp.abs(wp.dot(c.surface_side, wp.mesh_eval_face_normal(colliders.mesh, q.face))) > FLAT)
+        c.body = colliders.face_body[face]
+        c.face = face
+        c.flat = int(wp.abs(wp.dot(c.surface_side, wp.mesh_eval_face_normal(colliders.mesh, face))) > FLAT)
     return c
 
 
@@ -384,13 +398,6 @@ def color_node_range(first: int, colliders: ColliderArrays, g: GridSpec, f: Colo
     # sparse grid: a range of storage indices (whole blocks)
     n = first + wp.tid()
     color_node(colliders, g, f, n, node_coords(g, n))
-
-
-@wp.func(inline=True)
-def face_corners(mesh: wp.uint64, face: int):
-    # the three corners of triangle ``face`` of a Warp mesh
-    return wp.mesh_get_point(mesh, 3 * face), wp.mesh_get_point(mesh, 3 * face + 1), \
-        wp.mesh_get_point(mesh, 3 * face + 2)
 
 
 @wp.kernel

@@ -29,15 +29,17 @@ from the nodes at the cost of a few grid lookups:
   within NODE_COLOR_TOL of the lower bound it is taken, on static colliders away from
   rims and only where no stencil node could be separated from the particle
   (``stencil_facing``), so that CPIC's test keeps every node whatever the color.
-  Anything else (rims, moving colliders, particles close to a surface) asks the BVH.
+  Anything else (rims, moving colliders, particles close to a surface) asks for the
+  exact closest point (``colliders.color_point``: the per-cell lists of face_cells.py
+  on static colliders, the BVH otherwise).
 """
 
 from __future__ import annotations
 
 import warp as wp
 
-from .colliders import (NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node, color_point,
-                        face_corners)
+from .colliders import NODE_BAND, ON_NODE, PARTICLE_BAND, Color, ColliderArrays, ColorField, behind_node, color_point
+from .face_cells import closest_on_triangle, face_corners
 from .grid import GridSpec, nearest_node_coords, node_index, node_position
 from .stencil import stencil_base
 
@@ -64,38 +66,6 @@ def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
     if n < 0:
         return n, FAR_BOUND
     return n, wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
-
-
-@wp.func
-def closest_on_triangle(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3):
-    """The point of triangle abc closest to p: the face, an edge or a vertex, whichever
-    Voronoi region of the triangle p projects into (Ericson, Real-Time Collision
-    Detection, Section 5.1.5)."""
-    ab = b - a
-    ac = c - a
-    d1 = wp.dot(ab, p - a)
-    d2 = wp.dot(ac, p - a)
-    if d1 <= 0.0 and d2 <= 0.0:
-        return a
-    d3 = wp.dot(ab, p - b)
-    d4 = wp.dot(ac, p - b)
-    if d3 >= 0.0 and d4 <= d3:
-        return b
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        return a + (d1 / (d1 - d3)) * ab
-    d5 = wp.dot(ab, p - c)
-    d6 = wp.dot(ac, p - c)
-    if d6 >= 0.0 and d5 <= d6:
-        return c
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        return a + (d2 / (d2 - d6)) * ac
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        return b + ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b)
-    den = 1.0 / (va + vb + vc)
-    return a + (vb * den) * ab + (vc * den) * ac
 
 
 @wp.func(inline=True)

@@ -88,6 +88,8 @@ class MPMSolver:
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
         self.cpic = colliders is not None and bool(colliders.arrays.cpic)
+        if colliders is not None:  # the particles' closest points, per cell (sim/face_cells.py)
+            colliders.index_faces(self.grids[0], self.launcher)
         self.collider_arrays = colliders.arrays if colliders is not None else empty_colliders(device)
         for g in self.grids:
             g.color = color_field(g.capacity if colliders is not None else 1, device)
@@ -109,12 +111,10 @@ class MPMSolver:
         self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
-        self._segment = 0  # substeps in the current segment
-        self._substep = 0  # of which taken
+        self._segment, self._substep = 0, 0  # substeps in the current segment, of which taken
         self._segment_start = 0  # step count at its start
         self._start = SegmentStart(device)  # the particles at the segment's start (rewind)
-        # Captured graphs (run_segment; moving colliders run eagerly); the tests set ``capture``
-        # on the CPU too (Warp >= 1.19 replays CPU graphs, on one thread).
+        # Captured graphs (run_segment; moving colliders run eagerly); the tests set ``capture`` on the CPU too
         if config.cuda_graph and not self.launcher.device.is_cuda:
             warnings.warn("cuda_graph is ignored on the CPU: substeps run eagerly on all threads", stacklevel=2)
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
