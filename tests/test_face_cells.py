@@ -10,7 +10,8 @@ import warp as wp
 
 from abmpm.scene import model as sm
 from abmpm.sim.colliders import PARTICLE_BAND, ColliderArrays, color_point
-from abmpm.sim.face_cells import build_face_cells, no_face_cells
+from abmpm.sim.collider_set import without_face_cells
+from abmpm.sim.face_cells import build_face_cells
 from abmpm.sim.grid import GridSpec
 from abmpm.simulation import Simulation
 
@@ -61,14 +62,6 @@ def band_samples(sim: Simulation, count: int, seed: int = 0):
     return x.astype(np.float32), bound.astype(np.float32), n.astype(np.float32)
 
 
-def without_lists(arrays: ColliderArrays) -> ColliderArrays:
-    bvh = ColliderArrays()
-    for name in ("enabled", "cpic", "mesh", "face_body", "bodies", "rims", "face_clear"):
-        setattr(bvh, name, getattr(arrays, name))
-    bvh.cells = no_face_cells(arrays.face_body.device)
-    return bvh
-
-
 def test_the_lists_answer_what_the_bvh_answers():
     sim = Simulation(glass_and_sheet(), device="cpu", mode="original")
     arrays = sim.colliders.arrays
@@ -80,7 +73,7 @@ def test_the_lists_answer_what_the_bvh_answers():
     dist = wp.zeros(n, dtype=wp.vec2)
     same = wp.zeros(n, dtype=wp.int32)
     wp.launch(compare_queries, n, [wp.array(x, dtype=wp.vec3), wp.array(bound, dtype=float), wp.array(side, dtype=wp.vec3),
-                                   arrays, without_lists(arrays), g, found, dist, same])
+                                   arrays, without_face_cells(arrays), g, found, dist, same])
     f, d = found.numpy(), dist.numpy()
     hit = f >= 0
     # points whose closest surface lies at their bound are left out (see BOUND_TOL)

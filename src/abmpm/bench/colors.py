@@ -6,8 +6,10 @@ points in one run:
 
 * ``bvh``: the BVH's closest-point query, bounded by the particle's distance plus
   its motion (what every band particle paid before ``sim/node_color.py``);
+* ``lists``: the same query answered from the cell's list of triangles that can be
+  closest (``sim/face_cells.py``, static colliders);
 * ``nodes``: what G2P does now, the color read from the nodes' field where they
-  vouch for it (``color_from_nodes``, then ``color_from_faces``), the same BVH query
+  vouch for it (``color_from_nodes``, then ``color_from_faces``), the lists' query
   elsewhere.
 
 The points are sampled on the inside of a collider (area-weighted over its
@@ -26,6 +28,7 @@ import trimesh
 import warp as wp
 
 from ..scene.loader import load_scene
+from ..sim.collider_set import without_face_cells
 from ..sim.colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point
 from ..sim.grid import GridSpec
 from ..sim.node_color import NEEDS_QUERY, color_from_faces, color_from_nodes
@@ -75,8 +78,8 @@ def band_points(sim: Simulation, count: int, seed: int = 0) -> tuple[np.ndarray,
 
 def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, repeats: int = 5,
                      device: str = "cpu") -> dict:
-    """ns per band particle of its color by the BVH and from the nodes, on one thread
-    (one ``wp.launch``), best of ``repeats``; the share the nodes vouched for."""
+    """ns per band particle of its color by the BVH, by the lists and from the nodes, on
+    one thread (one ``wp.launch``), best of ``repeats``; the share the nodes vouched for."""
     sim = Simulation(load_scene(scene_name), device=device, mode="original")
     sim.step()  # colors the nodes
     grid = sim.solver.grid  # the coarse grid (original mode: the only one)
@@ -85,8 +88,11 @@ def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, 
     body = wp.zeros(count, dtype=wp.int32, device=device)
     found = {m: wp.zeros(count, dtype=float, device=device) for m in (0, 1)}
     out = {"scene": scene_name, "triangles": sim.colliders.triangle_count, "points": count}
-    for mode, name in ((0, "bvh"), (1, "nodes")):
-        args = [xs, ns, ds, sim.colliders.arrays, grid.spec, grid.color, mode, body, found[mode]]
+    found[2] = wp.zeros(count, dtype=float, device=device)
+    listed = sim.colliders.arrays
+    for mode, name, colliders in ((0, "bvh", without_face_cells(listed)), (0, "lists", listed), (1, "nodes", listed)):
+        slot = 2 if name == "lists" else mode
+        args = [xs, ns, ds, colliders, grid.spec, grid.color, mode, body, found[slot]]
         wp.launch(_band_colors, count, args, device=device)
         wp.synchronize_device(device)
         best = float("inf")
@@ -101,5 +107,6 @@ def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, 
             out["taken"] = round(float(np.mean(b != int(NEEDS_QUERY))), 3)
     diff = np.abs(found[0].numpy() - found[1].numpy()) / grid.spec.dx
     out["largest_distance_difference_cells"] = round(float(diff.max()), 4)
+    out["lists_largest_difference_cells"] = round(float((np.abs(found[0].numpy() - found[2].numpy()) / grid.spec.dx).max()), 6)
     out["speedup"] = round(out["bvh_ns"] / out["nodes_ns"], 2)
     return out

@@ -275,6 +275,16 @@ def empty_colliders(device) -> ColliderArrays:
     return s
 
 
+def without_face_cells(arrays: ColliderArrays) -> ColliderArrays:
+    """The same colliders with no per-cell lists: every closest point from the BVH
+    (the benchmarks' and the tests' reference)."""
+    bvh = ColliderArrays()
+    for name in ("enabled", "cpic", "mesh", "face_body", "bodies", "rims", "face_clear"):
+        setattr(bvh, name, getattr(arrays, name))
+    bvh.cells = no_face_cells(arrays.face_body.device)
+    return bvh
+
+
 def color_field(n: int, device) -> ColorField:
     """Color field for n nodes of storage, all far from every collider."""
     f = ColorField()
