@@ -43,7 +43,7 @@ def glass_and_sheet() -> sm.Scene:
     glass = sm.HourglassCollider(height=0.5, radius=0.15, neck_radius=0.04, center=(0.3, 0.36, 0.3),
                                  rotation=(12.0, 0.0, 7.0))
     plate = sm.SheetCollider(size=(0.4, 0.4), center=(0.3, 0.07, 0.3), resolution=17, rotation=(5.0, 0.0, -9.0))
-    return sm.Scene(simulation=sm.SimulationSettings(dx=0.02, domain_min=(0.0, 0.0, 0.0), domain_max=(0.6, 0.66, 0.6)),
+    return sm.Scene(simulation=sm.SimulationSettings(dx=0.01, domain_min=(0.0, 0.0, 0.0), domain_max=(0.6, 0.66, 0.6)),
                     materials=[sm.Fluid(name="water")],
                     bodies=[sm.SphereBody(material="water", center=(0.3, 0.45, 0.3), radius=0.05)],
                     colliders=[glass, plate])
@@ -89,7 +89,9 @@ def test_the_lists_answer_what_the_bvh_answers():
 
 
 def test_the_lists_give_way_to_the_bvh_where_they_would_not_pay():
-    # moving colliders keep the BVH alone; so do lists over the memory limit
+    # moving colliders keep the BVH alone; so do lists over the memory limit, and lists
+    # of a mesh much finer than the grid (a 20k-triangle ball of 0.15 m on 5 cm cells:
+    # hundreds of triangles a cell, slower to scan than the BVH's traversal)
     scene = glass_and_sheet()
     moving = scene.colliders[0].model_copy(update={"motion": sm.Motion(velocity=(0.1, 0.0, 0.0))})
     sim = Simulation(scene.model_copy(update={"colliders": [moving, scene.colliders[1]]}), device="cpu",
@@ -100,3 +102,10 @@ def test_the_lists_give_way_to_the_bvh_where_they_would_not_pay():
     small = build_face_cells(sim.colliders.mesh, grid.origin, grid.dx, cells, PARTICLE_BAND * grid.dx,
                              sim.solver.launcher, max_entries=1000)
     assert small.enabled == 0
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=0.15)
+    mesh = wp.Mesh(points=wp.array((ball.vertices + 0.3).astype(np.float32), dtype=wp.vec3),
+                   indices=wp.array(ball.faces.astype(np.int32).ravel(), dtype=wp.int32))
+    fine = build_face_cells(mesh, (0.0, 0.0, 0.0), 0.05, (12, 12, 12), PARTICLE_BAND * 0.05, sim.solver.launcher)
+    assert fine.enabled == 0
+    coarse = build_face_cells(mesh, (0.0, 0.0, 0.0), 0.005, (120, 120, 120), PARTICLE_BAND * 0.005, sim.solver.launcher)
+    assert coarse.enabled == 1  # the same ball on cells about its triangles' size

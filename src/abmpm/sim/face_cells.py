@@ -33,6 +33,11 @@ wp.set_module_options({"enable_backward": False})
 
 CELLS_PER_COARSE = 2  # list cells per coarse cell and axis (finer: shorter lists, 8x the memory)
 MAX_ENTRIES = 32_000_000  # more list entries than this (8 bytes each) and the BVH stays
+# Longer lists than this on average and the BVH stays: a scan costs ~45 ns a triangle.
+# Measured (docs/benchmarks.md, "The triangles a cell can be closest to"): the paper
+# hourglass's glass (mean 31) its G2P 0.82x the BVH's; the paper panel (63) 1.2x the BVH's in
+# its coarse G2P; the quick hourglass's fine glass (176) the whole step 1.25x
+MAX_MEAN_LIST = 40
 SLACK = 1.0e-4  # of a cell's edge: a point's cell lookup may round across the cell's face
 BAND_SLACK = 1.0e-4  # relative: the lists answer bounds this much above the band asked for
 CELL_RANGE = 256  # cells worth a thread of their own when building (a query and a box search each)
@@ -231,7 +236,8 @@ def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launc
                      sub: int = CELLS_PER_COARSE, max_entries: int = MAX_ENTRIES) -> FaceCells:
     """The lists of a static mesh over a coarse grid of ``cells`` cells of edge ``dx``
     from ``origin``, exact for queries bounded by ``band``; no lists (every query to the
-    BVH) when they would hold more than ``max_entries`` entries."""
+    BVH) when they would hold more than ``max_entries`` entries, or more than
+    MAX_MEAN_LIST triangles a cell on average (triangles much smaller than the cells)."""
     device = mesh.device
     fc = no_face_cells(device)
     fc.origin = wp.vec3(*[float(a) for a in origin])
@@ -252,9 +258,10 @@ def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launc
     slots = len(listed) * sub**3
     count = wp.zeros(max(slots, 1), dtype=wp.int32, device=device)
     launcher.launch(count_cell_faces, slots, [mesh.id, fc, coarse, count], label="face cells", min_range=CELL_RANGE)
+    counts = count.numpy()[:slots]
     start = np.zeros(slots + 1, np.int64)
-    np.cumsum(count.numpy()[:slots], out=start[1:])
-    if start[-1] > max_entries or start[-1] == 0:
+    np.cumsum(counts, out=start[1:])
+    if start[-1] == 0 or start[-1] > max_entries or start[-1] > MAX_MEAN_LIST * np.count_nonzero(counts):
         return no_face_cells(device)
     fc.start = wp.array(start.astype(np.int32), dtype=wp.int32, device=device)
     fc.face = wp.zeros(int(start[-1]), dtype=wp.int32, device=device)
