@@ -41,6 +41,7 @@ MAX_MEAN_LIST = 40
 SLACK = 1.0e-4  # of a cell's edge: a point's cell lookup may round across the cell's face
 BAND_SLACK = 1.0e-4  # relative: the lists answer bounds this much above the band asked for
 CELL_RANGE = 256  # cells worth a thread of their own when building (a query and a box search each)
+SAMPLE_CELLS = 4096  # cells counted first, evenly spread, to tell whether the lists would pay
 NO_LIST = wp.constant(-2)  # closest_face: the point's cell has no list (ask the BVH)
 
 
@@ -180,10 +181,11 @@ def list_radius(fc: FaceCells, mesh: wp.uint64, o: wp.vec3):
 
 
 @wp.kernel
-def count_cell_faces(first: int, mesh: wp.uint64, fc: FaceCells, coarse: wp.array(dtype=wp.int32),
+def count_cell_faces(first: int, mesh: wp.uint64, fc: FaceCells, coarse: wp.array(dtype=wp.int32), stride: int,
                      count: wp.array(dtype=wp.int32)):
-    s = first + wp.tid()
-    o = list_cell(fc, coarse, s)
+    # the list length of every ``stride``-th cell (a sample first: is it worth building?)
+    t = first + wp.tid()
+    o = list_cell(fc, coarse, t * stride)
     R = list_radius(fc, mesh, o)
     n = int(0)
     if R >= 0.0:
@@ -192,7 +194,7 @@ def count_cell_faces(first: int, mesh: wp.uint64, fc: FaceCells, coarse: wp.arra
         while wp.mesh_query_aabb_next(box, f):
             if triangle_distance(mesh, f, o) <= R:
                 n += 1
-    count[s] = n
+    count[t] = n
 
 
 @wp.kernel
@@ -232,6 +234,18 @@ def no_face_cells(device) -> FaceCells:
     return fc
 
 
+def _count(mesh: wp.Mesh, fc: FaceCells, coarse: wp.array, launcher, stride: int, n: int) -> np.ndarray:
+    count = wp.zeros(max(n, 1), dtype=wp.int32, device=mesh.device)
+    launcher.launch(count_cell_faces, n, [mesh.id, fc, coarse, stride, count], label="face cells", min_range=CELL_RANGE)
+    return count.numpy()[:n]
+
+
+def _worth_building(counts: np.ndarray, stride: int, max_entries: int) -> bool:
+    # every stride-th cell's list length: the entries within the limit, the lists short enough
+    entries = int(counts.sum())
+    return 0 < entries * stride <= max_entries and entries <= MAX_MEAN_LIST * np.count_nonzero(counts)
+
+
 def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launcher,
                      sub: int = CELLS_PER_COARSE, max_entries: int = MAX_ENTRIES) -> FaceCells:
     """The lists of a static mesh over a coarse grid of ``cells`` cells of edge ``dx``
@@ -256,13 +270,15 @@ def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launc
     fc.first = wp.array(first, dtype=wp.int32, device=device)
     coarse = wp.array(listed, dtype=wp.int32, device=device)
     slots = len(listed) * sub**3
-    count = wp.zeros(max(slots, 1), dtype=wp.int32, device=device)
-    launcher.launch(count_cell_faces, slots, [mesh.id, fc, coarse, count], label="face cells", min_range=CELL_RANGE)
-    counts = count.numpy()[:slots]
+    # a sample of SAMPLE_CELLS cells first: lists that would not pay are not counted in full
+    stride = max(1, slots // SAMPLE_CELLS) | 1  # odd: not the same corner of every coarse cell
+    if stride > 1 and not _worth_building(_count(mesh, fc, coarse, launcher, stride, slots // stride), stride, max_entries):
+        return no_face_cells(device)
+    counts = _count(mesh, fc, coarse, launcher, 1, slots)
+    if not _worth_building(counts, 1, max_entries):
+        return no_face_cells(device)
     start = np.zeros(slots + 1, np.int64)
     np.cumsum(counts, out=start[1:])
-    if start[-1] == 0 or start[-1] > max_entries or start[-1] > MAX_MEAN_LIST * np.count_nonzero(counts):
-        return no_face_cells(device)
     fc.start = wp.array(start.astype(np.int32), dtype=wp.int32, device=device)
     fc.face = wp.zeros(int(start[-1]), dtype=wp.int32, device=device)
     fc.near = wp.zeros(int(start[-1]), dtype=float, device=device)
