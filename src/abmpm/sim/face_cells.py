@@ -161,13 +161,14 @@ def list_cell(fc: FaceCells, coarse: wp.array(dtype=wp.int32), slot: int):
 
 
 @wp.kernel
-def near_coarse_cells(first: int, mesh: wp.uint64, fc: FaceCells, near: wp.array(dtype=wp.int32)):
-    # 1 for a coarse cell some point of which lies within the band of a surface
-    c = first + wp.tid()
-    o = fc.origin + (wp.vec3(float(c // (fc.dims[1] * fc.dims[2])), float((c // fc.dims[2]) % fc.dims[1]),
-                             float(c % fc.dims[2])) + wp.vec3(0.5)) * fc.dx
+def near_coarse_cells(first: int, mesh: wp.uint64, fc: FaceCells, lo: wp.vec3i, shape: wp.vec3i,
+                      near: wp.array(dtype=wp.int32)):
+    # 1 for a coarse cell of the box (lo, shape) some point of which lies within the band of a surface
+    t = first + wp.tid()
+    c = lo + wp.vec3i(t // (shape[1] * shape[2]), (t // shape[2]) % shape[1], t % shape[2])
+    o = fc.origin + (wp.vec3(float(c[0]), float(c[1]), float(c[2])) + wp.vec3(0.5)) * fc.dx
     q = wp.mesh_query_point_no_sign(mesh, o, fc.band + 0.8661 * fc.dx + fc.reach)
-    near[c] = int(q.result)
+    near[t] = int(q.result)
 
 
 @wp.func
@@ -261,10 +262,19 @@ def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launc
     fc.reach = (0.5 * np.sqrt(3.0) + SLACK) * fc.h
     fc.band = float(band) * (1.0 + BAND_SLACK)  # a kernel's float32 PARTICLE_BAND * dx may round above it
     fc.dims = wp.vec3i(*[int(c) for c in cells])
+    # the coarse cells around the mesh (its box grown by the band) are the only candidates
+    points = mesh.points.numpy()
+    pad = band / dx + 1.0
+    lo = np.clip(np.floor((points.min(axis=0) - np.asarray(origin)) / dx - pad), 0, cells).astype(int)
+    hi = np.clip(np.ceil((points.max(axis=0) - np.asarray(origin)) / dx + pad), 0, cells).astype(int)
+    shape = np.maximum(hi - lo, 0)
+    near = wp.zeros(max(int(np.prod(shape)), 1), dtype=wp.int32, device=device)
+    launcher.launch(near_coarse_cells, int(np.prod(shape)), [mesh.id, fc, wp.vec3i(*lo), wp.vec3i(*shape), near],
+                    label="face cells", min_range=CELL_RANGE)
+    box = np.flatnonzero(near.numpy()[:int(np.prod(shape))])
+    c = np.stack(np.unravel_index(box, shape), axis=1) + lo if len(box) else np.zeros((0, 3), int)
+    listed = np.ravel_multi_index(c.T, cells).astype(np.int32) if len(box) else np.zeros(0, np.int32)
     total = int(np.prod(cells))
-    near = wp.zeros(total, dtype=wp.int32, device=device)
-    launcher.launch(near_coarse_cells, total, [mesh.id, fc, near], label="face cells", min_range=CELL_RANGE)
-    listed = np.flatnonzero(near.numpy()).astype(np.int32)
     first = np.full(total, -1, np.int32)
     first[listed] = np.arange(len(listed), dtype=np.int32) * sub**3
     fc.first = wp.array(first, dtype=wp.int32, device=device)
