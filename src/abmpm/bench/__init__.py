@@ -352,7 +352,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         colliders["band_colors"] = [time_band_colors(name, device=device) for name in ("paper_hourglass", "hourglass")]
         for row in colliders["band_colors"]:
             print(f"band colors, {row['scene']} ({row['triangles']} triangles): BVH {row['bvh_ns']} ns, "
-                  f"lists {row['lists_ns']} ns, nodes {row['nodes_ns']} ns a band particle "
+                  + (f"lists {row['lists_ns']} ns, " if row["lists_built"] else "no lists (they would not pay), ")
+                  + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
     interface = run_interface_suite(device) if args.suite == "interface" else {}
     scaling = []

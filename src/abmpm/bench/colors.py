@@ -87,7 +87,8 @@ def time_band_colors(scene_name: str = "paper_hourglass", count: int = 200_000, 
     xs, ns, ds = (wp.array(a, dtype=t, device=device) for a, t in ((x, wp.vec3), (n, wp.vec3), (d, float)))
     body = wp.zeros(count, dtype=wp.int32, device=device)
     found = {m: wp.zeros(count, dtype=float, device=device) for m in (0, 1)}
-    out = {"scene": scene_name, "triangles": sim.colliders.triangle_count, "points": count}
+    out = {"scene": scene_name, "triangles": sim.colliders.triangle_count, "points": count,
+           "lists_built": bool(sim.colliders.arrays.cells.enabled)}  # else "lists" is the BVH again
     found[2] = wp.zeros(count, dtype=float, device=device)
     listed = sim.colliders.arrays
     for mode, name, colliders in ((0, "bvh", without_face_cells(listed)), (0, "lists", listed), (1, "nodes", listed)):
