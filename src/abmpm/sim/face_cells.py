@@ -14,8 +14,9 @@ cell, computed once:
   |x - t| <= dmin + r and |o - t| <= dmin + 2r; and a query bounded by B <= ``band``
   only looks at triangles with |o - t| <= B + r. The cell lists every triangle with
   |o - t| <= min(dmin + 2r, band + r), sorted by |o - t|.
-* A query scans its cell's list and stops at the first triangle with |o - t| - r at
-  least the best distance so far (no later one can be closer: |x - t| >= |o - t| - r).
+* A query scans its cell's list and stops at the first triangle with |o - t| - |x - o|
+  at least the best distance so far (no later one can be closer: |x - t| >= |o - t| -
+  |x - o|).
 
 So the answer is the BVH's, exactly (the same closest distance; measured to 1e-5 cells
 on every query of the paper hourglass), at 0.45 of its cost there for a coarse
@@ -110,34 +111,38 @@ def triangle_distance(mesh: wp.uint64, face: int, x: wp.vec3):
 
 @wp.func
 def cell_slot(fc: FaceCells, x: wp.vec3):
-    """The list cell holding x, or -1 where there is none."""
+    """The list cell holding x (-1 where there is none) and its centre."""
     q = (x - fc.origin) / fc.dx
     c = wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
     if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] >= fc.dims[0] or c[1] >= fc.dims[1] or c[2] >= fc.dims[2]:
-        return -1
+        return -1, x
     s = fc.first[(c[0] * fc.dims[1] + c[1]) * fc.dims[2] + c[2]]
     if s < 0:
-        return -1
+        return -1, x
     top = fc.sub - 1
     i = wp.clamp(int(wp.floor((q[0] - float(c[0])) * float(fc.sub))), 0, top)
     j = wp.clamp(int(wp.floor((q[1] - float(c[1])) * float(fc.sub))), 0, top)
     k = wp.clamp(int(wp.floor((q[2] - float(c[2])) * float(fc.sub))), 0, top)
-    return s + (i * fc.sub + j) * fc.sub + k
+    cell = c * fc.sub + wp.vec3i(i, j, k)
+    return s + (i * fc.sub + j) * fc.sub + k, fc.origin + (wp.vec3(float(cell[0]), float(cell[1]), float(cell[2])) + wp.vec3(0.5)) * fc.h
 
 
 @wp.func
 def closest_face(fc: FaceCells, mesh: wp.uint64, x: wp.vec3, bound: float):
     """The triangle closest to x within ``bound`` (<= ``band``) and its point: (-1, ...)
     when none is that close, (NO_LIST, ...) when x's cell has no list."""
-    s = cell_slot(fc, x)
+    s, o = cell_slot(fc, x)
     point = wp.vec3(0.0)
     if s < 0:
         return NO_LIST, point
     best = float(bound)
     hit = int(-1)
+    # |x - t| >= |o - t| - |x - o|: x's own offset from the centre, not the cell's half-diagonal
+    # (the same answer; 1.6-1.7x fewer triangles looked at), plus the lookup's slack
+    lim = wp.length(x - o) + SLACK * fc.h
     for t in range(fc.start[s], fc.start[s + 1]):
-        if fc.near[t] - fc.reach >= best:
-            break  # sorted: no later triangle comes closer to any point of the cell
+        if fc.near[t] - lim >= best:
+            break  # sorted: no later triangle comes closer to x
         f = fc.face[t]
         a, b, c = face_corners(mesh, f)
         q = closest_on_triangle(x, a, b, c)
