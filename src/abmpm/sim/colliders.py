@@ -238,10 +238,9 @@ def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: fl
     c.body = -1
     face = int(NO_LIST)
     point = wp.vec3(0.0)
-    # a particle's query (bounded by PARTICLE_BAND cells, never a node's NODE_BAND): the
-    # per-cell lists give the BVH's answer, cheaper (face_cells.py); far from a surface, as
-    # for a fine node, a cell's list is long and the BVH is the cheaper of the two
-    if colliders.cells.enabled != 0 and max_dist <= colliders.cells.band and max_dist < NODE_BAND * g.dx:
+    # static colliders: the per-cell lists give the BVH's answer, cheaper (face_cells.py), to
+    # every query they cover (a particle's, a fine node's; not a coarse node's NODE_BAND)
+    if colliders.cells.enabled != 0 and max_dist <= colliders.cells.band:
         face, point = closest_face(colliders.cells, colliders.mesh, x, max_dist)
     if face == NO_LIST:
         face = -1
