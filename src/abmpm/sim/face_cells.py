@@ -34,10 +34,11 @@ wp.set_module_options({"enable_backward": False})
 
 CELLS_PER_COARSE = 2  # list cells per coarse cell and axis (finer: shorter lists, 8x the memory)
 MAX_ENTRIES = 32_000_000  # more list entries than this (8 bytes each) and the BVH stays
-# Longer lists than this on average and the BVH stays: a scan costs ~45 ns a triangle.
+# Longer lists than this on average and the BVH stays (~19 ns a triangle looked at).
 # Measured (docs/benchmarks.md, "The triangles a cell can be closest to"): the paper
-# hourglass's glass (mean 31) its G2P 0.82x the BVH's; the paper panel (63) 1.2x the BVH's in
-# its coarse G2P; the quick hourglass's fine glass (176) the whole step 1.25x
+# hourglass's glass (mean 31) its G2P 0.77x the BVH's; the paper panel (63) its step the
+# BVH's (fine G2P 0.89x, coarse 1.11x) for 100 MB; the quick hourglass's glass (176) its
+# step 1.25x the BVH's (measured before the tighter stop)
 MAX_MEAN_LIST = 40
 SLACK = 1.0e-4  # of a cell's edge: a point's cell lookup may round across the cell's face
 BAND_SLACK = 1.0e-4  # relative: the lists answer bounds this much above the band asked for
