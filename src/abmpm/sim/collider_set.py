@@ -125,8 +125,7 @@ class ColliderSet:
     def index_faces(self, grid: Grid, launcher) -> None:
         """Static colliders in CPIC mode: per cell of ``grid`` (the coarse grid), the
         triangles that can be closest to a point in it, for the closest-point queries of
-        the particles of every level and of the fine nodes (bounded by PARTICLE_BAND coarse
-        cells; ``face_cells.py``).
+        the particles of every level (bounded by PARTICLE_BAND coarse cells; ``face_cells.py``).
         Moving colliders keep the BVH alone (their lists would change every substep)."""
         if self.static and self.arrays.cpic:
             cells = [int(d) - 1 for d in grid.dims]

@@ -238,9 +238,11 @@ def color_point(colliders: ColliderArrays, g: GridSpec, x: wp.vec3, max_dist: fl
     c.body = -1
     face = int(NO_LIST)
     point = wp.vec3(0.0)
-    # static colliders: the per-cell lists give the BVH's answer, cheaper (face_cells.py), to
-    # every query they cover (a particle's, a fine node's; not a coarse node's NODE_BAND)
-    if colliders.cells.enabled != 0 and max_dist <= colliders.cells.band:
+    # a particle's query on static colliders (bounded by PARTICLE_BAND cells, never a node's
+    # NODE_BAND): the per-cell lists give the BVH's answer, cheaper (face_cells.py). Nodes keep
+    # the BVH: a node equidistant from two rims (the middle of a slit a fine cell wide) takes
+    # whichever the search meets first, and the lists' choice moved such a slit's flow by 15%
+    if colliders.cells.enabled != 0 and max_dist <= colliders.cells.band and max_dist < NODE_BAND * g.dx:
         face, point = closest_face(colliders.cells, colliders.mesh, x, max_dist)
     if face == NO_LIST:
         face = -1

@@ -21,8 +21,8 @@ cell, computed once:
 So the answer is the BVH's, exactly (the same closest distance; measured to 1e-5 cells
 on every query of the paper hourglass), at 0.3 of its cost there for a coarse
 particle and 0.46 for a fine one (docs/benchmarks.md, "The triangles a cell can be
-closest to"), and 0.47 for a fine node's color. Points outside the listed cells, queries
-bounded beyond the band (a coarse node's color) and moving colliders go to the BVH.
+closest to"). Points outside the listed cells, the nodes' colors (colliders.color_point
+says why) and moving colliders go to the BVH.
 """
 
 from __future__ import annotations
