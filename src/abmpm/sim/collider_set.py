@@ -279,7 +279,7 @@ def without_face_cells(arrays: ColliderArrays) -> ColliderArrays:
     """The same colliders with no per-cell lists: every closest point from the BVH
     (the benchmarks' and the tests' reference)."""
     bvh = ColliderArrays()
-    for name in ("enabled", "cpic", "mesh", "face_body", "bodies", "rims", "face_clear"):
+    for name in ColliderArrays.vars:
         setattr(bvh, name, getattr(arrays, name))
     bvh.cells = no_face_cells(arrays.face_body.device)
     return bvh
