@@ -109,3 +109,7 @@ def test_the_lists_give_way_to_the_bvh_where_they_would_not_pay():
     assert fine.enabled == 0
     coarse = build_face_cells(mesh, (0.0, 0.0, 0.0), 0.005, (120, 120, 120), PARTICLE_BAND * 0.005, sim.solver.launcher)
     assert coarse.enabled == 1  # the same ball on cells about its triangles' size
+    # a collider wholly outside the grid: no cell to list, no error
+    away = wp.Mesh(points=wp.array((ball.vertices + 5.0).astype(np.float32), dtype=wp.vec3),
+                   indices=wp.array(ball.faces.astype(np.int32).ravel(), dtype=wp.int32))
+    assert build_face_cells(away, (0.0, 0.0, 0.0), 0.05, (12, 12, 12), PARTICLE_BAND * 0.05, sim.solver.launcher).enabled == 0
