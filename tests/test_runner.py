@@ -9,7 +9,7 @@ import pytest
 
 from abmpm.cli import main
 from abmpm.errors import OutputError, SimulationBlowUp
-from abmpm.io import load_checkpoint, read_particles_ply
+from abmpm.io import load_checkpoint, read_particles_ply, save_checkpoint
 from abmpm.runner import render_folder, run
 from abmpm.scene.model import (
     BoxBody,
@@ -339,3 +339,33 @@ def test_colliders_in_preview_without_frames(tmp_path):
     pa = imageio.imread(tmp_path / "a" / "preview.png").astype(int)
     pb = imageio.imread(tmp_path / "b" / "preview.png").astype(int)
     assert (np.abs(pa - pb).sum(axis=2) > 40).sum() > 500
+
+
+def test_adaptive_resume_after_splits_is_bit_identical(tmp_path):
+    # In adaptive mode the particle count changes with every split: a checkpoint holds
+    # more particles than the scene starts with, and resuming must still accept it
+    # (it refused every adaptive run that had split a particle until 2026-11-27).
+    scene = tiny_scene(checkpoint_every=10)
+    scene.simulation.refinement.mode = "adaptive"
+    scene.simulation.refinement.boxes = [[[0.1, 0.0, 0.0], [0.4, 0.4, 0.4]]]
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    quiet_run(scene, straight, frames=4, preview=False)
+    quiet_run(scene, split, frames=2, preview=False)
+    saved, _ = load_checkpoint(split / "checkpoints" / "checkpoint_00002.npz")
+    assert len(saved["x"]) > Simulation(scene, device="cpu").particle_count  # particles split since frame 0
+    resumed = quiet_run(scene, split, frames=4, resume=True, preview=False)
+    assert resumed["resumed_from_frame"] == 2 and resumed["status"] == "completed"
+    ca, _ = load_checkpoint(straight / "checkpoints" / "checkpoint_00004.npz")
+    cb, _ = load_checkpoint(split / "checkpoints" / "checkpoint_00004.npz")
+    for k in ca:
+        np.testing.assert_array_equal(ca[k], cb[k], err_msg=k)
+
+
+def test_resume_refuses_another_scenes_particles(tmp_path):
+    quiet_run(tiny_scene(), tmp_path / "out", frames=1, preview=False)
+    ckpt = tmp_path / "out" / "checkpoints" / "checkpoint_00001.npz"
+    arrays, meta = load_checkpoint(ckpt)
+    keep = {k: a[:-5] for k, a in arrays.items()}  # five scene particles gone
+    save_checkpoint(ckpt, keep, meta)
+    with pytest.raises(OutputError, match="cannot resume"):
+        quiet_run(tiny_scene(), tmp_path / "out", frames=2, resume=True, preview=False)

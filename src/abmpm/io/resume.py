@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from abmpm.errors import OutputError
 from abmpm.io.checkpoint import latest_checkpoint, load_checkpoint
 from abmpm.io.outdir import CHECKPOINTS_DIR, SCENE_FILE, scene_from_folder
@@ -22,13 +24,25 @@ def resume_from_checkpoint(out: Path, scene: Scene, sim) -> tuple[int | None, li
         return None, [f"no checkpoint in {out / CHECKPOINTS_DIR}; starting from frame 0"]
     _check_resumable(out, scene, sim, ckpt)
     arrays, meta = load_checkpoint(ckpt)
-    if len(arrays.get("x", ())) != sim.particle_count:
+    saved, scene_has = _scene_particles(arrays), _scene_particles(vars(sim.particles()))
+    if saved.shape != scene_has.shape or (saved != scene_has).any():
         raise OutputError(
-            f"{ckpt}: holds {len(arrays.get('x', ()))} particles but the scene has "
-            f"{sim.particle_count}; cannot resume"
+            f"{ckpt}: its {len(arrays.get('x', ()))} particles come from {len(saved)} particles of a scene, "
+            f"but this scene has {len(scene_has)} (or others); cannot resume"
         )
     sim.load_state_dict(arrays, meta)
     return sim.frame, [f"resuming from {ckpt.name} (frame {sim.frame})"]
+
+
+def _scene_particles(arrays: dict) -> np.ndarray:
+    """The scene's particles a state holds, by id: a split child stands for its parent
+    (``family``), every other particle for itself. In adaptive mode the particle count
+    changes with every split and merge; these ids do not (a checkpoint without ids: one
+    id per particle)."""
+    ids, family = arrays.get("id"), arrays.get("family")
+    if ids is None or family is None:
+        return np.arange(len(arrays.get("x", ())))
+    return np.unique(np.where(np.asarray(family) >= 0, family, ids))
 
 
 def _physics_dump(scene: Scene) -> dict:
