@@ -444,7 +444,7 @@ class Simulation:
         self._last_good_signal = self._signal
         self.solver.reserve_ids(int(meta.get("next_id", self.solver.next_id)))
         self.solver.reset_step_count(self.steps)
-        self.solver.adopt(self._state)
+        self.solver.adopt(self._state, recolor=False)  # its colors are the run's: bit-identical
         if self.solver.slow is not None:
             self._slow_signal = tuple(float(a) for a in meta.get("slow_signal", self._signal))
             self._signal_all = False

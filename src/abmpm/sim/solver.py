@@ -429,15 +429,15 @@ class MPMSolver:
                 self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
                                      start=first, label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 
-    def adopt(self, state: ParticleState) -> None:
-        """Make the grids ready for a state that was replaced wholesale (loaded from a
-        checkpoint, edited, merged): fine blocks for its level-1 particles, colors."""
+    def adopt(self, state: ParticleState, recolor: bool = True) -> None:
+        """Fine blocks and colors for a state replaced wholesale (loaded, edited, merged)."""
         if self.slow is not None and self.slow.open:
             raise RuntimeError("close the slow set's step before replacing the particles")
         self.slow_count = 0  # every particle fast until the next sort
         if self.refiner is not None:
             self._after_activation(self.refiner.activate(state))
-        self.color_particles(state)
+        if recolor:  # a checkpoint keeps the colors its run gave it
+            self.color_particles(state)
         if self.slow is not None:  # the slow set is chosen again (as the sort at a frame end does)
             self.sort_by_cell(state)
 
