@@ -402,6 +402,25 @@ def test_resume_next_to_a_collider_is_bit_identical(mode):
     for k in ("x", "v", "C", "F", "surface_point", "surface_side", "surface_body"):
         assert np.array_equal(a[k][ia], b[k][ib]), k
 
+
+def test_last_good_checkpoint_is_the_frames_checkpoint():
+    # What an interrupted or blown-up run saves (the last good frame) must be the
+    # checkpoint a run writes at that frame's end: the same particles in the same order
+    # (after the frame end's merge and sort) and the same next id and time-step signals.
+    # Until 2026-11-27 it was the state before the merge and sort, with the next frame's
+    # next id, so a run resumed from it was not the uninterrupted one.
+    sim = abmpm.Simulation(abmpm.load_scene("hourglass"), device="cpu", mode="adaptive")
+    sim.advance(frames=3)
+    arrays, meta = sim.state_dict()
+    while sim.solver.next_id == meta["next_id"]:  # into the next frame, past a split
+        sim.step()
+    assert sim.substep != 0
+    kept, kept_meta = sim.state_dict(last_good=True)
+    assert kept_meta == meta
+    assert kept.keys() == arrays.keys()
+    for k in arrays:
+        assert np.array_equal(kept[k], arrays[k]), k
+
 def test_region_follows_a_moving_collider():
     sheet = sm.SheetCollider(size=(0.3, 0.3), center=(0.3, 0.5, 0.5), motion=sm.Motion(velocity=(1.0, 0, 0)))
     scene = abmpm.Scene(

@@ -115,8 +115,7 @@ class Simulation:
         self.solver.sort_by_cell(self._state)
         self._choose_dt((float(np.sqrt((arrays["v"].astype(np.float64) ** 2).sum(axis=1)).max()), 1.0))
         self.solver.color_particles(self._state)
-        self._last_good = self._state.numpy()
-        self._last_good_signal = self._signal
+        self._keep_last_good(self._state.numpy())
         self.history.append(self._diagnostics(self._last_good))
 
     # ------------------------------------------------------------------ time stepping
@@ -307,22 +306,28 @@ class Simulation:
                 f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
-        diag = self._diagnostics(snap)
-        self._last_good = snap
-        self.history.append(diag)
+        self.history.append(self._diagnostics(snap))
         self._choose_dt(self._signal)  # the step's signal was checked in step()
-        self._last_good_signal = self._signal
+        changed = False  # the particles since snap
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
             self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:
-            self._merge(snap)
+            changed = self._merge(snap)
         if self.frame % SORT_EVERY_FRAMES == 0:
             self.solver.sort_by_cell(self._state)
+            changed = True
         if self.solver.slow is not None:  # the slow set's share follows the sort
             self._choose_dt(self._signal)
+        # what a checkpoint of this frame holds, also when the next frame fails or is interrupted
+        self._keep_last_good(self._state.numpy() if changed else snap)
 
-    def _merge(self, snap: dict[str, np.ndarray]) -> None:
-        """Merge families that left the region (by the margin) back into level-0 particles."""
+    def _keep_last_good(self, snap: dict[str, np.ndarray]) -> None:
+        self._last_good, self._last_good_signal = snap, self._signal
+        self._last_good_ids, self._last_good_slow = self.solver.next_id, self._slow_signal
+
+    def _merge(self, snap: dict[str, np.ndarray]) -> bool:
+        """Merge families that left the region (by the margin) back into level-0 particles
+        (whether any did)."""
         r = self.scene.simulation.refinement
         region = self.solver.region
         if r.merge_margin:
@@ -336,6 +341,7 @@ class Simulation:
         if n:
             self._load_arrays(merged)
             self.solver.adopt(self._state)
+        return n > 0
 
     # ------------------------------------------------------------------ inspection
 
@@ -417,11 +423,11 @@ class Simulation:
             "substeps": self.substeps,
             # fastest particle and fluid stiffening at that frame: they set the next time step
             "cfl_signal": list(self._last_good_signal if last_good else self._signal),
-            "slow_signal": list(self._slow_signal),
+            "slow_signal": list(self._last_good_slow if last_good else self._slow_signal),
             "history": [h for h in self.history if h["frame"] <= frame],
             "scene": self.scene.name,
             "mode": self.mode,
-            "next_id": self.solver.next_id,
+            "next_id": self._last_good_ids if last_good else self.solver.next_id,
         }
         return arrays, meta
 
@@ -441,7 +447,6 @@ class Simulation:
         else:  # checkpoints written before the per-substep CFL
             self.dt, self.substeps = float(meta["dt"]), int(meta["substeps"])
             self._left, self._signal = self.substeps, (0.0, 1.0)
-        self._last_good_signal = self._signal
         self.solver.reserve_ids(int(meta.get("next_id", self.solver.next_id)))
         self.solver.reset_step_count(self.steps)
         self.solver.adopt(self._state, recolor=False)  # its colors are the run's: bit-identical
@@ -449,4 +454,4 @@ class Simulation:
             self._slow_signal = tuple(float(a) for a in meta.get("slow_signal", self._signal))
             self._signal_all = False
             self._choose_dt(self._signal)
-        self._last_good = self._state.numpy()
+        self._keep_last_good(self._state.numpy())
