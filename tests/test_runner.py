@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 
 import numpy as np
 import pytest
@@ -243,14 +244,17 @@ def test_interrupt_checkpoints_last_frame_and_resumes(tmp_path, monkeypatch, cap
         '[[bodies]]\nshape = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.15, 0.2, 0.4]\n'
     )
     out = tmp_path / "out"
-    code = main(["run", str(path), "--out", str(out), "--frames", "4", "-q"])
+    code = main(["run", str(path), "--out", str(out), "--frames", "4", "--mode", "original", "-q"])
     err = capsys.readouterr().err
     assert code == 130 and "Traceback" not in err and "--resume" in err
+    # the printed command continues the run as asked for (its mode and frame count too)
+    hint = shlex.split(err.split("continue with: ")[1].strip())
+    assert hint[:2] == ["abmpm", "run"] and {"--mode", "--frames", "--resume"} <= set(hint)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["frames"] == 2
     assert [p.name for p in (out / "checkpoints").iterdir()] == ["checkpoint_00002.npz"]
     monkeypatch.setattr(Simulation, "advance", original)
-    assert main(["run", str(path), "--out", str(out), "--frames", "4", "-q", "--resume"]) == 0
+    assert main(hint[1:] + ["-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["frames"] == 4 and summary["resumed_from_frame"] == 2
 

@@ -26,6 +26,7 @@ import importlib
 import importlib.util
 import os
 import platform
+import shlex
 import sys
 from pathlib import Path
 
@@ -57,6 +58,17 @@ from abmpm.sweep import parse_set
 # --------------------------------------------------------------------------- commands
 
 
+def _resume_command(args, out: Path) -> str:
+    """The command that continues an interrupted ``abmpm run`` as it was asked for (the
+    mode and the frame count are part of what the checkpoint belongs to)."""
+    parts = ["abmpm", "run", args.scene, "--out", str(out)]
+    for flag, value in (("--mode", args.mode), ("--frames", args.frames), ("--device", args.device),
+                        ("--threads", args.threads)):
+        if value:
+            parts += [flag, str(value)]
+    return shlex.join(parts + (["--no-preview"] if args.no_preview else []) + ["--resume"])
+
+
 def _cmd_run(args) -> int:
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)  # read by the solver's launcher
@@ -77,7 +89,7 @@ def _cmd_run(args) -> int:
             view=_view_options(args),
         )
     except KeyboardInterrupt:
-        print(f"interrupted; continue with: abmpm run {args.scene} --out {out} --resume", file=sys.stderr)
+        print(f"interrupted; continue with: {_resume_command(args, out)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except SimulationBlowUp as exc:
         raise SimulationBlowUp(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
