@@ -281,6 +281,15 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
                                 ("simulation.refinement.boxes", "min must not exceed max")),
     "refinement_box_outside_the_domain": (sub("boxes = []", "boxes = [[[0.5, 0.1, 0.1], [0.9, 0.3, 0.3]]]"),
                                           ("simulation.refinement.boxes[0]", "outside the domain on axis x")),
+    # a box thinner than a cell between two centres refined nothing without a word (until 2026-11-27)
+    "refinement_box_between_cell_centres": (sub("boxes = []", "boxes = [[[0.0, 0.11, 0.0], [0.2, 0.12, 0.2]]]"),
+                                            ("simulation.refinement.boxes[0]", "no cell centre on axis y")),
+    "refinement_box_with_no_volume": (sub("boxes = []", "boxes = [[[0.1, 0.1, 0.1], [0.1, 0.1, 0.1]]]"),
+                                      ("simulation.refinement.boxes[0]", "would refine nothing")),
+    "refinement_box_one_corner": (sub("boxes = []", "boxes = [[0.1, 0.1, 0.1]]"),
+                                  ("simulation.refinement.boxes[0]", "two corners")),
+    "refinement_box_three_corners": (sub("boxes = []", "boxes = [[[0.0, 0.0, 0.0], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3]]]"),
+                                     ("simulation.refinement.boxes[0]", "two corners")),
     "inverted_domain": (sub("domain_max = [0.4, 0.4, 0.4]", "domain_max = [0.4, -0.4, 0.4]"),
                         ("simulation.domain_max", "must exceed domain_min")),
     # ---- numbers too big (or too small) for the solver, or that break time stepping

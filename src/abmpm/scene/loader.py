@@ -234,6 +234,10 @@ def _message(err: dict) -> tuple[str, str]:
     ctx = err.get("ctx") or {}
     value = err.get("input")
     path = _dotted(loc)
+    if len(loc) >= 2 and loc[-2] == "boxes" and isinstance(loc[-1], int) and typ != "value_error":
+        # a box of the wrong shape: its two corners, not a vector
+        got = f"a list of {len(value)}" if isinstance(value, (list, tuple)) else _got(value)
+        return path, f"expected a box [[min x, y, z], [max x, y, z]] (two corners), got {got}"
     if typ == "extra_forbidden":
         return path, "unknown key"
     if typ == "missing":

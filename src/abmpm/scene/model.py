@@ -167,6 +167,15 @@ class SimulationSettings(_Strict):
                     f"refinement.boxes[{i}]: the box lies outside the domain on axis {'xyz'[a]} ({lo[a]:g} to "
                     f"{hi[a]:g}, domain {self.domain_min[a]:g} to {self.domain_max[a]:g}): it would refine nothing"
                 )
+            # a cell is refined when its centre lies in the box (geometry/region.py)
+            for a in range(3):
+                first = math.ceil((lo[a] - self.domain_min[a]) / self.dx - 0.5)
+                if self.domain_min[a] + (first + 0.5) * self.dx > hi[a]:
+                    raise ValueError(
+                        f"refinement.boxes[{i}]: the box holds no cell centre on axis {'xyz'[a]} ({lo[a]:g} to "
+                        f"{hi[a]:g}; cells are dx = {self.dx:g} wide and a cell is refined when its centre is in "
+                        "the box): it would refine nothing"
+                    )
         return self
 
 
