@@ -84,6 +84,29 @@ def test_colliders_and_surfaces_round_trip(usd_run):
         assert set(np.asarray(water.GetFaceVertexCountsAttr().Get(n))) == {3}
 
 
+
+def test_a_resumed_run_keeps_the_colliders_of_every_frame(tmp_path):
+    """Resumed at frame 2, the USD still holds the moving sheet of frames 0-2 (it held
+    only the frames simulated after the resume until 2026-11-27, so USD showed the
+    sheet's frame-3 pose in frames 0-2)."""
+    scene = sm.Scene(
+        name="usd_resumed",
+        simulation=sm.SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.04, fps=FPS),
+        materials=[sm.Fluid(name="water")],
+        bodies=[sm.BoxBody(material="water", min=(0.1, 0.2, 0.1), max=(0.3, 0.3, 0.3))],
+        colliders=[sm.SheetCollider(size=(0.3, 0.3), center=(0.2, 0.15, 0.2),
+                                    motion=sm.Motion(velocity=(0.0, -0.5, 0.0)))],
+        output=sm.Output(usd=True, preview=False),
+    )
+    out = tmp_path / "run"
+    run(scene, out, frames=2, device="cpu", progress=False)
+    run(scene, out, frames=4, device="cpu", progress=False, resume=True)
+    stage = Usd.Stage.Open(str(out / "particles.usd"))
+    sheet = UsdGeom.Mesh(stage.GetPrimAtPath("/World/colliders"))
+    assert sheet.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0, 3.0, 4.0]
+    for n in range(5):
+        assert np.asarray(sheet.GetPointsAttr().Get(n))[:, 1].max() == pytest.approx(0.15 - 0.5 * n / FPS, abs=1e-6)
+
 def test_passes_usd_checkers(usd_run):
     """UsdUtils.ComplianceChecker (usd-core <= 25.8, what the tests install) and every
     UsdValidation validator find nothing."""

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from abmpm.errors import OutputError
-from abmpm.io.outdir import USD_FILE
+from abmpm.io.outdir import COLLIDER_RE, COLLIDERS_DIR, USD_FILE, numbered
 from abmpm.io.ply import read_mesh_ply
 from abmpm.io.usd import UsdStageWriter
 from abmpm.io.writers.base import FrameData, RunContext, Writer
@@ -76,6 +76,9 @@ class UsdWriter(Writer):
         source = run.frames.source(run.last_frame)
         if source:
             colliders = {} if self.track is None else {n: (v, self.track.faces) for n, v in self.track.vertices.items()}
+            # frames before a resume: the collider PLYs the run wrote then (if it wrote any)
+            colliders |= {n: read_mesh_ply(p) for n, p in numbered(run.out / COLLIDERS_DIR, COLLIDER_RE)
+                          if n not in colliders}
             write_usd(run.out / USD_FILE, run.scene, source, colliders, surfaces_of_folder(run.out))
             run.outputs["usd"] = USD_FILE
         run.render_seconds += time.perf_counter() - t0
