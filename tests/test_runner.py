@@ -373,3 +373,18 @@ def test_resume_refuses_another_scenes_particles(tmp_path):
     save_checkpoint(ckpt, keep, meta)
     with pytest.raises(OutputError, match="cannot resume"):
         quiet_run(tiny_scene(), tmp_path / "out", frames=2, resume=True, preview=False)
+
+
+def test_notes_for_runs_that_do_nothing_new(tmp_path, capsys):
+    # adaptive mode with nothing that can refine, and a resume already past --frames: said, not silent
+    path = tmp_path / "tiny.toml"
+    path.write_text(
+        '[simulation]\ndomain_max = [0.4, 0.4, 0.4]\ndx = 0.05\n[simulation.refinement]\nmode = "adaptive"\n'
+        '[[materials]]\nname = "water"\nmodel = "fluid"\n'
+        '[[bodies]]\nshape = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.15, 0.2, 0.4]\n'
+    )
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--frames", "2", "--no-preview"]) == 0
+    assert "nothing to refine" in " ".join(capsys.readouterr().err.split())  # rich wraps lines
+    assert main(["run", str(path), "--out", str(out), "--frames", "1", "--no-preview", "--resume"]) == 0
+    assert "nothing left to simulate" in " ".join(capsys.readouterr().err.split())

@@ -42,7 +42,7 @@ from abmpm.io.writers.summary import make_summary
 from abmpm.post.preview import render_folder
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
-from abmpm.simulation import Simulation
+from abmpm.simulation import Simulation, can_refine
 
 __all__ = ["render_folder", "run", "total_frames"]
 
@@ -92,6 +92,12 @@ def run(
     if not resume:
         _check_initial_state(scene, sim)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, [])
+    if sim.mode == "adaptive" and not can_refine(scene):
+        notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
+                     "every particle stays on the coarse grid, as in original mode")
+    if resumed_from is not None and resumed_from >= total:
+        notes.append(f"the checkpoint is at frame {resumed_from}, at or past the {total} frames asked for: "
+                     "nothing left to simulate")
     if resumed_from is None:
         clean_previous_run(out)
     write_json(out / SCENE_FILE, scene.model_dump(mode="json"))

@@ -64,7 +64,7 @@ class Particles:
         return Particles(**{k: getattr(self, k)[order] for k in self.__dataclass_fields__})
 
 
-def _can_refine(scene: Scene) -> bool:
+def can_refine(scene: Scene) -> bool:
     """Whether an adaptive run of ``scene`` can ever split: it has boxes or a collider
     marked for refinement (with neither, adaptive mode is the original run)."""
     return bool(scene.simulation.refinement.boxes) or any(c.refine for c in scene.colliders)
@@ -96,7 +96,7 @@ class Simulation:
         # 1 unless the solver replays captured graphs. Any value gives the results of
         # one substep at a time: a segment that must stop early is rewound.
         self.max_segment = SEGMENT_MAX if self.solver.capture else 1
-        arrays = sample_scene(scene, b if self.mode == "adaptive" and _can_refine(scene) else 1)
+        arrays = sample_scene(scene, b if self.mode == "adaptive" and can_refine(scene) else 1)
         if self.mode == "finest":
             arrays["level"][:] = 1
         self._load_arrays(arrays)
