@@ -86,8 +86,8 @@ def _cmd_blender(args) -> int:
 def add_parsers(sub) -> None:
     """Add ``render`` and ``blender`` to the subparsers ``sub`` of ``abmpm``."""
     d = sub.add_parser("render", help="re-render the preview of a run from its frames (--beauty: path-traced)",
-                       description="Re-render preview.mp4 / preview.png of a run, or with --beauty "
-                                   "beauty.mp4 / beauty.png. " + BEAUTY_HELP + ".")
+                       description="Re-render preview.mp4 / preview.png of a run from its frames. With "
+                                   "--beauty: " + BEAUTY_HELP + ".")
     d.add_argument("dir", metavar="DIR", help="output folder of a run")
     d.add_argument("--beauty", action="store_true", help=BEAUTY_HELP)
     d.add_argument("--spp", type=_samples, metavar="N", help="--beauty: samples per pixel (default 16)")
