@@ -82,12 +82,14 @@ class RevolutionSide:
         ring = [(0.0, prof[0, 1])] + [tuple(p) for p in prof] + [(0.0, prof[-1, 1])]
         self.inside = Polygon(ring)
         self.tol = prof[:, 0].max() * (1.0 - np.cos(np.pi / segments)) + 1e-6
+        shapely.prepare(self.line)  # indexed once: the tests ask after every step, for every particle
+        shapely.prepare(self.inside)
 
     def __call__(self, x):
         q = (x.astype(np.float64) - self.c) @ self.R
         r, y = np.hypot(q[:, 0], q[:, 2]), q[:, 1]
         pts = shapely.points(r, y)
-        far = shapely.distance(self.line, pts) > self.tol
+        far = ~shapely.dwithin(self.line, pts, self.tol)  # distance > tol
         inside = shapely.contains(self.inside, pts)
         return np.where(far, np.where(inside, 1, -1), 0)
 
