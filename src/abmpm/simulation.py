@@ -306,7 +306,7 @@ class Simulation:
                 f"simulation blew up at step {self.steps} (t = {self.frame * self.frame_dt + self.frame_dt:.4f} s): "
                 f"particle field '{bad}' became NaN/inf; last good frame is {self.frame}"
             )
-        self.history.append(self._diagnostics(snap))
+        dt = self.dt  # the frame's last step (the diagnostics'), before the next frame's is chosen
         self._choose_dt(self._signal)  # the step's signal was checked in step()
         changed = False  # the particles since snap
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
@@ -318,8 +318,10 @@ class Simulation:
             changed = True
         if self.solver.slow is not None:  # the slow set's share follows the sort
             self._choose_dt(self._signal)
-        # what a checkpoint of this frame holds, also when the next frame fails or is interrupted
+        # what a checkpoint of this frame holds, also when the next frame fails or is interrupted,
+        # and what its diagnostics describe (the particles its PLY frame holds: after the merge)
         self._keep_last_good(self._state.numpy() if changed else snap)
+        self.history.append(self._diagnostics(self._last_good, dt))
 
     def _keep_last_good(self, snap: dict[str, np.ndarray]) -> None:
         self._last_good, self._last_good_signal = snap, self._signal
@@ -345,9 +347,9 @@ class Simulation:
 
     # ------------------------------------------------------------------ inspection
 
-    def _diagnostics(self, snap: dict[str, np.ndarray]) -> dict:
+    def _diagnostics(self, snap: dict[str, np.ndarray], dt: float | None = None) -> dict:
         d = frame_diagnostics(snap, self._level_dx, self.scene.simulation.gravity)
-        d.update(frame=self.frame, time=self.frame * self.frame_dt, steps=self.steps, dt=self.dt)
+        d.update(frame=self.frame, time=self.frame * self.frame_dt, steps=self.steps, dt=self.dt if dt is None else dt)
         return d
 
     @property
