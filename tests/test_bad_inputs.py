@@ -290,6 +290,8 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
                                   ("simulation.refinement.boxes[0]", "two corners")),
     "refinement_box_three_corners": (sub("boxes = []", "boxes = [[[0.0, 0.0, 0.0], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3]]]"),
                                      ("simulation.refinement.boxes[0]", "two corners")),
+    # explicit viscosity's step limit (dx^2 rho / eta) past 1e8 steps a frame
+    "absurd_viscosity": (sub("viscosity = 0.0", "viscosity = 1.0e15"), ("materials[0].viscosity", "sets the time step")),
     "inverted_domain": (sub("domain_max = [0.4, 0.4, 0.4]", "domain_max = [0.4, -0.4, 0.4]"),
                         ("simulation.domain_max", "must exceed domain_min")),
     # ---- numbers too big (or too small) for the solver, or that break time stepping

@@ -115,3 +115,26 @@ def test_collider_scene_in_warp_debug_mode(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["steps"] > 10
+
+
+@pytest.mark.parametrize("model", ["fluid", "viscoelastic"])
+def test_very_viscous_material_takes_the_viscous_step(model):
+    # Explicit viscosity is stable while nu dt / dx^2 stays under ~0.4-0.6 (measured on
+    # a box at rest, docs/method.md "Time step"). eta = 12000 Pa s on 0.1 m cells with
+    # the default max_dt of 1 ms is nu dt / dx^2 = 1.2: that blew up within ten steps until
+    # 2026-11-27, when the step followed only the wave speed. Now the step is
+    # VISCOUS_CFL dx^2 / nu and the box slides to rest without gaining speed.
+    from abmpm.runtime import VISCOUS_CFL
+
+    eta, rho, dx = 12000.0, 1000.0, 0.1
+    material = (abmpm.Fluid(name="goo", density=rho, bulk_modulus=5e4, viscosity=eta) if model == "fluid" else
+                abmpm.Viscoelastic(name="goo", density=rho, youngs_modulus=1e5, viscosity=eta))
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(domain_max=(1, 1, 1), dx=dx, fps=10),
+        materials=[material],
+        bodies=[abmpm.BoxBody(material="goo", min=(0.2, 0.0, 0.2), max=(0.8, 0.5, 0.8), velocity=(0.5, 0, 0))],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    assert sim.dt <= VISCOUS_CFL * dx * dx * rho / eta * (1 + 1e-6)
+    sim.advance(seconds=0.3)
+    assert np.linalg.norm(sim.particles().v, axis=1).max() <= 0.5 + 1e-3  # never faster than it started

@@ -46,6 +46,13 @@ def material_rows(scene: Scene) -> list[MaterialParams]:
     return [material_params(m) for m in scene.materials]
 
 
+def max_kinematic_viscosity(scene: Scene) -> float:
+    """Largest viscosity / density (m^2/s) among the materials that bodies use (the
+    explicit viscous step limit; 0 where none is viscous)."""
+    used = {b.material for b in scene.bodies}
+    return max((getattr(m, "viscosity", 0.0) / m.density for m in scene.materials if m.name in used), default=0.0)
+
+
 def max_wave_speed(scene: Scene) -> float:
     """Fastest wave speed at rest among the materials that bodies use (CFL)."""
     used = {b.material for b in scene.bodies}

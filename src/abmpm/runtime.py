@@ -1,5 +1,5 @@
 """What every layer above ``sim/`` needs of the machine: Warp started once and
-quietly, the device a run asks for, and the CFL formula.
+quietly, the device a run asks for, and the time step's formula (CFL and viscosity).
 
 ``scene/`` (its feasibility checks) and ``simulation.py`` both import this; it
 imports nothing of abmpm but the errors, so neither has to import the other.
@@ -19,11 +19,20 @@ DEBUG_ENV = "ABMPM_WARP_DEBUG"  # set: Warp's debug build (every array access bo
 
 _warp_ready = False
 
+# Explicit viscosity (Newtonian, or Kelvin-Voigt damping) diffuses momentum by nu dt / dx^2
+# of a cell per step: a fluid box at rest (dx = 0.05, eta up to 3000 Pa s, 0.6 s) ran
+# at nu dt / dx^2 = 0.2 and 0.4 and blew up at 0.6, 0.8 and 1.2, so half the last stable
+# measured value is kept (docs/method.md, "Time step").
+VISCOUS_CFL = 0.2
 
-def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float) -> float:
+
+def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float, viscosity: float = 0.0) -> float:
     """dt = min(max_dt, cfl dx / (wave speed + particle speed)): a signal crosses at
-    most ``cfl`` of a cell per step."""
-    return min(max_dt, cfl * dx / signal_speed)
+    most ``cfl`` of a cell per step; and with a kinematic ``viscosity`` nu (m^2/s, the
+    largest eta / rho of the materials) at most VISCOUS_CFL dx^2 / nu, the limit of
+    explicit viscosity."""
+    dt = min(max_dt, cfl * dx / signal_speed)
+    return min(dt, VISCOUS_CFL * dx * dx / viscosity) if viscosity > 0.0 else dt
 
 
 def init_warp() -> None:

@@ -17,7 +17,8 @@ from scipy.ndimage import binary_dilation
 
 from .errors import AbmpmError, SimulationBlowUp
 from .geometry.region import refinement_region
-from .inputs import material_rows, max_wave_speed, region_params, rigid_bodies, sample_scene, solver_config
+from .inputs import (material_rows, max_kinematic_viscosity, max_wave_speed, region_params, rigid_bodies, sample_scene,
+                     solver_config)
 from .runtime import cfl_time_step, choose_device, init_warp  # noqa: F401 (init_warp: part of the API)
 from .scene.model import Scene
 from .sim.collider_set import ColliderSet
@@ -91,6 +92,7 @@ class Simulation:
         self.dx = st.dx  # spacing of the coarsest grid
         self.colliders = ColliderSet(rigid_bodies(scene), self.device, cpic=st.cpic) if scene.colliders else None
         self.wave_speed = max_wave_speed(scene)
+        self.viscosity = max_kinematic_viscosity(scene)  # m^2/s: the viscous step limit
         self.solver = MPMSolver(solver_config(scene, self.mode), material_rows(scene), self.device, self.colliders)
         # The most substeps between two host points (one read of their CFL signals):
         # 1 unless the solver replays captured graphs. Any value gives the results of
@@ -125,14 +127,14 @@ class Simulation:
 
     def cfl_dt(self, max_speed: float, stiffening: float = 1.0, dx: float | None = None) -> float:
         """CFL step on the finest active spacing for the wave speed plus the fastest
-        particle, capped by max_dt. Where a fluid is compressed its sound speed is
+        particle, capped by max_dt and by the viscous limit. Where a fluid is compressed its sound speed is
         ``stiffening`` times the speed at rest; up to STIFFENING_SLACK of that is taken
         from the margin of the CFL number (the effective CFL number there stays below
         cfl * STIFFENING_SLACK = 0.8 by default), beyond it the step shrinks. ``dx``:
         another spacing (the slow set's, the coarse one)."""
         st = self.scene.simulation
         c = self.wave_speed * max(1.0, stiffening / STIFFENING_SLACK)
-        return cfl_time_step(st.cfl, st.max_dt, dx or self.solver.finest_active_dx, c + max_speed)
+        return cfl_time_step(st.cfl, st.max_dt, dx or self.solver.finest_active_dx, c + max_speed, self.viscosity)
 
     def _choose_dt(self, signal: tuple[float, float]) -> None:
         """At a frame start: the CFL step, shortened so that a whole number of equal

@@ -226,8 +226,10 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         rot = math.hypot(*b.angular_velocity) * diag
         body_speeds.append((lin + rot, i, "velocity" if lin >= rot else "angular_velocity"))
     v, i, vkey = max(body_speeds)
+    nu, kv = max(((getattr(m, "viscosity", 0.0) / m.density, k) for k, m in enumerate(scene.materials)
+                  if m.name in used), default=(0.0, 0))
     try:
-        dt = cfl_time_step(st.cfl, st.max_dt, dx, c + v)
+        dt = cfl_time_step(st.cfl, st.max_dt, dx, c + v, nu)
         steps = frame_dt / dt
     except (ZeroDivisionError, OverflowError):
         dt, steps = 0.0, math.inf
@@ -235,6 +237,11 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         return
     per_frame = f"a frame (1/fps = {frame_dt:.3g} s) would need {steps:.3g} time steps of {dt:.3g} s"
     limit = f"more than the {MAX_STEPS_PER_FRAME:.0e} allowed"
+    if nu > 0.0 and dt < cfl_time_step(st.cfl, st.max_dt, dx, c + v):
+        raise SceneError(
+            f"materials[{kv}].viscosity: explicit viscosity (viscosity / density = {nu:.3g} m^2/s on cells of "
+            f"{dx:.3g} m) sets the time step: {per_frame}, {limit}; lower the viscosity or raise simulation.dx"
+        )
     if dt == st.max_dt:
         raise SceneError(f"simulation.max_dt: {per_frame}, {limit}; raise max_dt")
     if v > c:
