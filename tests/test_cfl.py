@@ -138,3 +138,24 @@ def test_very_viscous_material_takes_the_viscous_step(model):
     assert sim.dt <= VISCOUS_CFL * dx * dx * rho / eta * (1 + 1e-6)
     sim.advance(seconds=0.3)
     assert np.linalg.norm(sim.particles().v, axis=1).max() <= 0.5 + 1e-3  # never faster than it started
+
+
+def test_a_crushed_solid_is_reported(tmp_path):
+    # A 10 cm jelly cube thrown at a wall at 200 m/s is crushed flat within a frame: the
+    # run completes (nothing is non-finite), but a run that turns particles inside out
+    # (det F <= 0) says so in summary.json and on the console; it said nothing until
+    # 2026-11-27 (an audit). A jelly at 2 m/s inverts nothing and reports nothing.
+    from abmpm.runner import run
+
+    def scene(speed):
+        return abmpm.Scene(
+            name="crushed", simulation=abmpm.SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.025, gravity=(0, 0, 0)),
+            materials=[abmpm.Elastic(name="jelly", youngs_modulus=1e5)],
+            bodies=[abmpm.BoxBody(material="jelly", min=(0.15, 0.15, 0.15), max=(0.25, 0.25, 0.25),
+                                  velocity=(speed, 0, 0))],
+            output=abmpm.Output(preview=False))
+
+    fast = run(scene(200.0), tmp_path / "fast", frames=2, device="cpu", progress=False)
+    assert fast["status"] == "completed" and fast["inverted_particles"]["most"] > 0
+    slow = run(scene(2.0), tmp_path / "slow", frames=2, device="cpu", progress=False)
+    assert "inverted_particles" not in slow

@@ -145,6 +145,11 @@ def run(
             ctx.status, message, err = "interrupted", "interrupted by the user", exc
         sim_seconds = time.perf_counter() - t_sim - io_seconds
         ctx.summary = make_summary(ctx, message, sim_seconds, io_seconds, sim.steps - steps0)
+        inverted = [(h["frame"], h.get("inverted", 0)) for h in sim.history if h.get("inverted", 0)]
+        if inverted:
+            first, most = inverted[0][0], max(n for _, n in inverted)
+            ctx.summary["inverted_particles"] = {"first_frame": first, "most": most}
+            bar.print(f"[yellow]{escape(_INVERTED.format(most=most, first=first))}[/yellow]")
 
         if err is None:
             _finish(writers, ctx)
@@ -156,6 +161,11 @@ def run(
             with contextlib.suppress(AbmpmError, OSError):
                 write_json(out / SUMMARY_FILE, ctx.summary)
         raise err
+
+
+_INVERTED = ("up to {most} particles were crushed flat or turned inside out (det F <= 0), first at frame {first}: "
+             "the solid was pressed beyond what its model describes; lower the speed of the impact, raise the "
+             "stiffness or lower simulation.cfl / max_dt")
 
 
 def _write_frame(writers: list[Writer], sim, **flags: bool) -> None:
