@@ -388,3 +388,14 @@ def test_notes_for_runs_that_do_nothing_new(tmp_path, capsys):
     assert "nothing to refine" in " ".join(capsys.readouterr().err.split())  # rich wraps lines
     assert main(["run", str(path), "--out", str(out), "--frames", "1", "--no-preview", "--resume"]) == 0
     assert "nothing left to simulate" in " ".join(capsys.readouterr().err.split())
+
+
+@pytest.mark.parametrize("duration, fps, frames", [(0.125, 20.0, 3), (0.05, 30.0, 2), (1.5, 30.0, 45), (0.1, 30.0, 3),
+                                                   (0.01, 30.0, 1)])
+def test_frames_cover_the_duration(duration, fps, frames):
+    # a part of a frame is a whole frame (round() took 2.5 frames down and 1.5 up)
+    from abmpm.runner import total_frames
+
+    scene = tiny_scene()
+    scene.simulation.duration, scene.simulation.fps = duration, fps
+    assert total_frames(scene) == frames

@@ -364,3 +364,17 @@ def test_cli_scenes_and_info(capsys):
     assert main(["info"]) == 0
     out = capsys.readouterr().out
     assert "warp" in out and "cpu" in out
+
+
+def test_a_folder_named_like_a_builtin_scene_does_not_hide_it(tmp_path, monkeypatch):
+    # `abmpm run dam_break --out dam_break` leaves a folder of that name; the next
+    # `abmpm run dam_break` there read "dam_break: is not a file" until 2026-11-27
+    from abmpm.errors import SceneError
+    from abmpm.scene.loader import load_scene
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "dam_break").mkdir()
+    (tmp_path / "not_a_scene").mkdir()
+    assert load_scene("dam_break").name == "dam_break"
+    with pytest.raises(SceneError, match="not_a_scene: is not a file"):
+        load_scene("not_a_scene")

@@ -25,6 +25,7 @@ run continues bit-identically (on the CPU) to one that was never interrupted.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import time
 from pathlib import Path
@@ -48,13 +49,14 @@ __all__ = ["render_folder", "run", "total_frames"]
 
 
 def total_frames(scene: Scene, frames: int | None = None) -> int:
-    """Frames of a run: ``frames`` if given, else ``duration * fps`` rounded (at least 1)."""
+    """Frames of a run: ``frames`` if given, else enough to cover ``duration`` (duration *
+    fps rounded up, at least 1; a part of a frame is a whole one)."""
     if frames is not None:
         if int(frames) < 1:
             raise AbmpmError(f"frames must be >= 1, got {frames}")
         return int(frames)
     st = scene.simulation
-    return max(1, round(st.duration * st.fps))
+    return max(1, math.ceil(st.duration * st.fps - 1e-6))
 
 
 def run(
@@ -95,6 +97,9 @@ def run(
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
+    if frames is None and abs(total - scene.simulation.duration * scene.simulation.fps) > 1e-6:
+        notes.append(f"duration {scene.simulation.duration:g} s is {scene.simulation.duration * scene.simulation.fps:.3g} "
+                     f"frames at {scene.simulation.fps:g} fps: simulating {total} frames ({total / scene.simulation.fps:.4g} s)")
     if resumed_from is not None and resumed_from >= total:
         notes.append(f"the checkpoint is at frame {resumed_from}, at or past the {total} frames asked for: "
                      "nothing left to simulate")

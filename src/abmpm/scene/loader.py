@@ -116,8 +116,10 @@ def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any]
     path = Path(text).expanduser()
     label = text
     if not path.is_file():
-        if path.exists():
+        looks_like_name = path.suffix == "" and not (os.sep in text or (os.altsep and os.altsep in text))
+        if path.exists() and not (looks_like_name and text in list_builtin_scenes()):
             raise SceneError(f"{text}: is not a file")
+        # a built-in name: also when a folder of that name is here (a run's output, `--out NAME`)
         looks_like_path = path.suffix.lower() == ".toml" or os.sep in text or (os.altsep and os.altsep in text)
         if looks_like_path:
             raise SceneError(f"{text}: scene file not found")
