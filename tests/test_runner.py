@@ -399,3 +399,19 @@ def test_frames_cover_the_duration(duration, fps, frames):
     scene = tiny_scene()
     scene.simulation.duration, scene.simulation.fps = duration, fps
     assert total_frames(scene) == frames
+
+
+def test_particles_inside_a_closed_collider_are_noted(tmp_path):
+    # a body overlapping a closed collider: its particles inside stay trapped (CPIC keeps
+    # every particle on its side); the run says so instead of running silently
+    scene = tiny_scene()
+    scene = scene.model_copy(update={"colliders": [_thin_box_through_the_water()]})
+    summary = quiet_run(scene, tmp_path / "out", frames=1, preview=False)
+    assert any("colliders[0]" in n and "trapped" in n for n in summary["notes"])
+    assert "notes" not in quiet_run(tiny_scene(), tmp_path / "clear", frames=1, preview=False)
+
+
+def _thin_box_through_the_water():
+    from abmpm.scene import model as sm
+
+    return sm.ThinBoxCollider(size=(0.4, 0.05, 0.4), center=(0.2, 0.1, 0.2))  # through the water block

@@ -34,6 +34,8 @@ import numpy as np
 from rich.markup import escape
 
 from abmpm.errors import AbmpmError, OutputError, SceneError, SimulationBlowUp
+from abmpm.geometry import inside_mesh
+from abmpm.geometry.placement import collider_mesh
 from abmpm.io.outdir import SCENE_FILE, SUMMARY_FILE, clean_previous_run, clean_temporaries, prepare_out_dir
 from abmpm.io.progress import Progress
 from abmpm.io.resume import resume_from_checkpoint
@@ -93,7 +95,7 @@ def run(
     sim = Simulation(scene, device)
     if not resume:
         _check_initial_state(scene, sim)
-    resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, [])
+    resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
@@ -150,6 +152,8 @@ def run(
             ctx.status, message, err = "interrupted", "interrupted by the user", exc
         sim_seconds = time.perf_counter() - t_sim - io_seconds
         ctx.summary = make_summary(ctx, message, sim_seconds, io_seconds, sim.steps - steps0)
+        if notes:
+            ctx.summary["notes"] = notes
         inverted = [(h["frame"], h.get("inverted", 0)) for h in sim.history if h.get("inverted", 0)]
         if inverted:
             first, most = inverted[0][0], max(n for _, n in inverted)
@@ -185,6 +189,22 @@ def _finish(writers: list[Writer], ctx: RunContext) -> None:
 
 
 # --------------------------------------------------------------------------- checks
+
+
+def _trapped(scene: Scene, sim) -> list[str]:
+    """A note for each closed collider that particles start inside: CPIC keeps them on
+    the side they start on, so they stay there."""
+    notes, x = [], None
+    for i, c in enumerate(scene.colliders):
+        mesh = collider_mesh(c, scene.resolve, f"colliders[{i}]")
+        if not mesh.is_watertight:
+            continue
+        x = sim.particles().x if x is None else x
+        n = int(inside_mesh(x, mesh).sum())
+        if n:
+            notes.append(f"colliders[{i}]: {n} of the {len(x)} particles start inside this closed collider and stay "
+                         "trapped there (no particle crosses a collider); move the bodies or the collider")
+    return notes
 
 
 def _check_initial_state(scene: Scene, sim) -> None:
