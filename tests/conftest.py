@@ -69,3 +69,21 @@ class RegistryCopy:
 def registry_copy(tmp_path):
     """A copy of the package to add a registry module to (``RegistryCopy``)."""
     return RegistryCopy(tmp_path)
+
+
+def _poison_velocity(sim, ids=None):
+    """What a blow-up leaves: NaN velocities (of the particles ``ids``, else all) written
+    into the device state itself (``set_particles`` refuses non-finite values)."""
+    import numpy as np
+
+    v = sim._state.v.numpy()
+    if ids is None:
+        v[:] = np.nan
+    else:
+        v[np.isin(sim._state.id.numpy(), ids)] = np.nan
+    sim._state.v.assign(v)
+
+
+@pytest.fixture
+def poison_velocity():
+    return _poison_velocity

@@ -662,3 +662,81 @@ def test_python_api_keeps_lists_numpy_and_ints():
         Fluid(name="w", density=float("inf"))
     with pytest.raises(ValueError):
         SimulationSettings(dx="0.05")
+
+
+# --------------------------------------------------------------------------- the Python API (audit of 2026-11-27)
+
+
+def _tiny_sim(mode=None):
+    import abmpm
+
+    scene = abmpm.Scene(simulation=abmpm.SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.04, fps=30),
+                        materials=[abmpm.Fluid(name="water")],
+                        bodies=[abmpm.BoxBody(material="water", min=(0.1, 0.1, 0.1), max=(0.2, 0.2, 0.2))])
+    return abmpm.Simulation(scene, device="cpu", mode=mode)
+
+
+@pytest.mark.parametrize("kw", [{"seconds": float("nan")}, {"seconds": float("inf")}, {"seconds": -1.0},
+                                {"frames": -1}, {"frames": 1.7}, {"frames": True}, {"frames": "2"}])
+def test_advance_refuses_what_it_cannot_run(kw):
+    # seconds=nan ran for ever (the stop test never held); the others did nothing or ran a
+    # frame count nobody asked for, without a word
+    sim = _tiny_sim()
+    with pytest.raises(ValueError, match=f"{next(iter(kw))}="):
+        sim.advance(**kw)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("material", 5, "material: values from 0 to 0"),  # a segfault in P2G for 1e6, wrong data for -1
+    ("level", 1, "level: values from 0 to 0"),  # original mode has no fine grid: the particles froze
+    ("mass", float("nan"), "mass: .* NaN"),
+    ("volume", 0.0, "volume: every value must be > 0"),
+    ("v", 1e40, "beyond single precision"),
+    ("x", 5.0, "outside the domain"),
+])
+def test_set_particles_refuses_values_a_step_cannot_take(field, value, message):
+    import numpy as np
+
+    sim = _tiny_sim()
+    shape = sim.state_dict()[0][field].shape
+    with pytest.raises(ValueError, match=message):
+        sim.set_particles(**{field: np.full(shape, value)})
+
+
+def test_load_state_dict_refuses_another_modes_state():
+    from abmpm.errors import AbmpmError
+
+    arrays, meta = _tiny_sim("finest").state_dict()
+    with pytest.raises(AbmpmError, match="finest run"):
+        _tiny_sim("original").load_state_dict(arrays, meta)
+    meta["mode"] = "original"  # the same arrays, relabelled: their level-1 particles still do not fit
+    with pytest.raises(AbmpmError, match="level"):
+        _tiny_sim("original").load_state_dict(arrays, meta)
+
+
+def test_simulation_and_load_scene_name_what_they_expected():
+    import abmpm
+    from abmpm.errors import SceneError
+
+    with pytest.raises(TypeError, match="abmpm.Scene"):
+        abmpm.Simulation("dam_break")
+    for bad, message in ((None, "expected a scene file"), ("", "empty"), ("a" * 300, "too long")):
+        with pytest.raises(SceneError, match=message):
+            abmpm.load_scene(bad)
+
+
+def test_bench_checks_its_options_before_it_runs(tmp_path):
+    for argv in (["--threads", "-1"], ["--seconds", "nan"], ["--frames", "0"], ["--json", str(tmp_path)]):
+        with pytest.raises(SystemExit) as exc:
+            main(["bench", "--suite", "adaptive", *argv])
+        assert exc.value.code == 2, argv
+
+
+def test_bad_threads_environment_and_unservable_host(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("ABMPM_THREADS", "abc")
+    assert main(["run", "dam_break", "--frames", "1", "--out", str(tmp_path / "o")]) == 2
+    assert "ABMPM_THREADS='abc'" in capsys.readouterr().err
+    monkeypatch.delenv("ABMPM_THREADS")
+    pytest.importorskip("viser")
+    assert main(["view", str(tmp_path), "--host", "nonsense.invalid"]) == 2  # it hung, silently
+    assert "cannot serve the viewer on host" in capsys.readouterr().err

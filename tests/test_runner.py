@@ -164,7 +164,7 @@ def test_frames_off_still_previews_and_usd(tmp_path):
     assert summary["outputs"]["usd"] == "particles.usd"
 
 
-def _explode_after_frame(monkeypatch, frame: int) -> None:
+def _explode_after_frame(monkeypatch, frame: int, poison) -> None:
     """Make the run blow up: after `frame` every particle's velocity becomes NaN."""
     original = Simulation.advance
 
@@ -173,16 +173,15 @@ def _explode_after_frame(monkeypatch, frame: int) -> None:
             if callback is not None:
                 callback(sim)
             if sim.frame == frame:
-                v = np.full((sim.particle_count, 3), np.nan, dtype=np.float32)
-                sim.set_particles(v=v)
+                poison(sim)
 
         return original(self, seconds=seconds, frames=frames, callback=poisoned)
 
     monkeypatch.setattr(Simulation, "advance", advance)
 
 
-def test_blow_up_keeps_frames_checkpoint_and_summary(tmp_path, monkeypatch):
-    _explode_after_frame(monkeypatch, 2)
+def test_blow_up_keeps_frames_checkpoint_and_summary(tmp_path, monkeypatch, poison_velocity):
+    _explode_after_frame(monkeypatch, 2, poison_velocity)
     out = tmp_path / "out"
     with pytest.raises(SimulationBlowUp, match="blew up"):
         quiet_run(tiny_scene(), out, frames=5)
@@ -197,8 +196,8 @@ def test_blow_up_keeps_frames_checkpoint_and_summary(tmp_path, monkeypatch):
     assert (out / "preview.mp4").is_file()  # what happened up to the blow-up
 
 
-def test_blow_up_cli_exit_code(tmp_path, monkeypatch, capsys):
-    _explode_after_frame(monkeypatch, 1)
+def test_blow_up_cli_exit_code(tmp_path, monkeypatch, capsys, poison_velocity):
+    _explode_after_frame(monkeypatch, 1, poison_velocity)
     path = tmp_path / "tiny.toml"
     path.write_text(
         """

@@ -235,7 +235,7 @@ def test_run_one_returns_the_row_of_its_summary(tmp_path):
     assert row["final.kinetic_energy"] == summary["series"]["kinetic_energy"][-1]
 
 
-def test_a_blow_up_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch, capsys):
+def test_a_blow_up_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch, capsys, poison_velocity):
     """Through the CLI: a scene file, one of two runs blows up: exit 2, both rows."""
     original = Simulation.advance
 
@@ -244,7 +244,7 @@ def test_a_blow_up_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch, caps
             if callback is not None:
                 callback(sim)
             if sim.scene.simulation.dx == 0.08 and sim.frame == 1:
-                sim.set_particles(v=np.full((sim.particle_count, 3), np.nan, dtype=np.float32))
+                poison_velocity(sim)
 
         return original(self, seconds=seconds, frames=frames, callback=poisoned)
 

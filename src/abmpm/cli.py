@@ -35,7 +35,7 @@ import warp as wp
 from rich.table import Table
 
 import abmpm
-from abmpm.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK
+from abmpm.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_threads_env
 from abmpm.cli_common import esc as _esc
 from abmpm.cli_common import frames_arg as _frames_arg
 from abmpm.cli_common import port_arg as _port_arg
@@ -369,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
     init_warp_silently()
     try:
+        if not getattr(args, "threads", None):
+            check_threads_env()  # ABMPM_THREADS, read by every run that is not given --threads
         return args.func(args)
     except AbmpmError as exc:
         lines = str(exc).splitlines() or [type(exc).__name__]

@@ -7,6 +7,10 @@ import argparse
 from rich.console import Console
 from rich.markup import escape
 
+from abmpm.arguments import frames_arg, positive_int, threads_arg  # noqa: F401 (the commands' types)
+from abmpm.errors import AbmpmError
+from abmpm.sim.parallel import default_threads
+
 EXIT_OK = 0
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -27,25 +31,12 @@ def esc(text) -> str:
     return escape(str(text))
 
 
-def positive_int(text: str, what: str) -> int:
-    """An argparse type: a whole number of ``what``, at least 1."""
+def check_threads_env() -> None:
+    """AbmpmError for an ABMPM_THREADS that is not a number of threads."""
     try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
-
-
-def threads_arg(text: str) -> int:
-    """--threads N"""
-    return positive_int(text, "threads")
-
-
-def frames_arg(text: str) -> int:
-    """--frames N"""
-    return positive_int(text, "frames")
+        default_threads()
+    except ValueError as exc:
+        raise AbmpmError(str(exc)) from None
 
 
 def port_arg(text: str) -> int:

@@ -26,7 +26,7 @@ from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
-from .sim.state import DYNAMIC, STATIC, ParticleState
+from .sim.state import DYNAMIC, STATIC, ParticleState, check_fields
 from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
@@ -75,6 +75,12 @@ class Simulation:
     """A running simulation of a :class:`~abmpm.scene.model.Scene`."""
 
     def __init__(self, scene: Scene, device: str | None = None, mode: str | None = None):
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene: expected an abmpm.Scene, got {type(scene).__name__} (a file or a built-in "
+                            "name: abmpm.Simulation(abmpm.load_scene(...)))")
+        for name, value in (("device", device), ("mode", mode)):
+            if value is not None and not isinstance(value, str):
+                raise TypeError(f"{name}: expected a string or None, got {value!r}")
         scene.check_feasible(mode, device)  # memory and time stepping (SceneError), before allocating
         init_warp()
         st = scene.simulation
@@ -287,9 +293,14 @@ class Simulation:
         if (seconds is None) == (frames is None):
             raise ValueError("give exactly one of seconds= or frames=")
         if frames is not None:
+            if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 0:
+                raise ValueError(f"frames= must be a whole number >= 0, got {frames!r}")
             target = self.frame + int(frames)
             done = lambda: self.frame >= target  # noqa: E731
         else:
+            if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(seconds) or seconds < 0:
+                raise ValueError(f"seconds= must be a finite number >= 0, got {seconds!r}")
             t_end = self.time + float(seconds)
             done = lambda: self.time >= t_end - 1e-9 * max(1.0, t_end)  # noqa: E731
         while not done():
@@ -408,9 +419,17 @@ class Simulation:
                 raise KeyError(f"unknown or read-only particle field {k!r}")
             if np.shape(a) != current[k].shape:
                 raise ValueError(f"{k}: expected shape {current[k].shape}, got {np.shape(a)}")
+        st = self.scene.simulation  # positions within a cell of the domain (the walls' own round-off passes)
+        check_fields(arrays, len(self.scene.materials), len(self.scene.colliders), self._levels(),
+                     (np.subtract(st.domain_min, st.dx), np.add(st.domain_max, st.dx)))
+        for k, a in arrays.items():
             current[k][slot] = np.asarray(a, dtype=current[k].dtype)
         self._load_arrays(current)
         self.solver.adopt(self._state)
+
+    def _levels(self) -> tuple[int, ...]:
+        # the particle levels this mode has a grid for
+        return {"original": (0,), "finest": (1,)}.get(self.mode, (0, 1))
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -440,6 +459,15 @@ class Simulation:
         missing = [k for k in DYNAMIC + STATIC if k not in arrays]
         if missing:
             raise AbmpmError(f"checkpoint lacks particle fields: {', '.join(missing)}")
+        if meta.get("mode", self.mode) != self.mode or not {"frame", "steps", "history"} <= set(meta):
+            raise AbmpmError(f"the checkpoint is of a {meta.get('mode', '?')} run with metadata {sorted(meta)}; "
+                             f"this simulation is in {self.mode} mode")
+        try:
+            if len({len(arrays[k]) for k in DYNAMIC + STATIC}) != 1:
+                raise ValueError("its particle fields differ in length")
+            check_fields(arrays, len(self.scene.materials), len(self.scene.colliders), self._levels())
+        except ValueError as exc:
+            raise AbmpmError(f"checkpoint: {exc} (another scene's?)") from None
         self._load_arrays({k: arrays[k] for k in DYNAMIC + STATIC})
         self.frame = int(meta["frame"])
         self.steps = int(meta["steps"])

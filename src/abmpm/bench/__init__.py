@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
 import os
 import platform
 import subprocess
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from ..arguments import frames_arg, threads_arg
 from ..io.summary import write_json
 from ..scene.model import (
     BoxBody,
@@ -264,11 +266,22 @@ def run_numba(reference: Path, n: int, grid: int, threads: int) -> float | None:
     return _steps_per_s(script, ["--n", str(n), "--grid", str(grid), "--threads", str(threads)], "numba yardstick")
 
 
+def _seconds(text: str) -> float:
+    """--seconds: a finite number above 0."""
+    try:
+        t = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(t) or t <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text}")
+    return t
+
+
 def run_bench(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="abmpm bench", description=__doc__)
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     ap.add_argument("--reference", type=Path, default=None, help="path to mls_mpm_minimal_warp.py")
-    ap.add_argument("--seconds", type=float, default=4.0, help="timed seconds per case")
+    ap.add_argument("--seconds", type=_seconds, default=4.0, help="timed seconds per case")
     ap.add_argument("--small", action="store_true", help="only the 100k case")
     ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "scaling", "reconstruction", "all"],
                     default="all",
@@ -278,13 +291,20 @@ def run_bench(argv: list[str] | None = None) -> dict:
                          "region (a box, or a wall with a small hole), the modes' cost (a plot beside --json); "
                          "reconstruction (not in all, ~30 s): the roughness of fluid spheres, sheared elastic "
                          "blocks, settled water and sand split whole, against their parents'")
-    ap.add_argument("--frames", type=int, default=10, help="frames per mode in the adaptive suite")
+    ap.add_argument("--frames", type=frames_arg, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
-    ap.add_argument("--threads", type=int, default=None, help="CPU threads (default: every core)")
+    ap.add_argument("--threads", type=threads_arg, default=None, help="CPU threads (default: every core)")
     ap.add_argument("--profile", action="store_true",
                     help="adaptive suite: time every kernel and phase of the step (ms per step) and how "
                          "evenly the CPU threads share each (busiest thread over the mean)")
     args = ap.parse_args(argv or [])
+    if args.json is not None:  # checked before the benchmark runs, not after
+        try:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            ap.error(f"--json {args.json}: cannot create its folder ({exc.strerror or exc})")
+        if args.json.is_dir() or not os.access(args.json.parent, os.W_OK):
+            ap.error(f"--json {args.json}: not a file that can be written")
 
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import socket
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -111,6 +112,17 @@ def _quiet():
     return contextlib.redirect_stdout(io.StringIO())
 
 
+def _check_host(host: str) -> None:
+    """OutputError unless this machine can serve on ``host`` (a name it resolves to one
+    of its own addresses)."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind, proto) as probe:
+            probe.bind(address)
+    except OSError as exc:
+        raise OutputError(f"cannot serve the viewer on host {host!r}: {exc.strerror or exc}") from None
+
+
 class Viewer:
     """A viser server showing the frames of an output folder (``out_dir``) or, with
     ``live=True``, the frames a running simulation of ``scene`` pushes to it.
@@ -131,6 +143,7 @@ class Viewer:
         port: int = DEFAULT_PORT,
     ):
         viser = need_viser("abmpm run --view" if live else "abmpm view")
+        _check_host(host)  # viser retries an address it cannot bind forever, silently
         self.live = live
         self.out = Path(out_dir) if out_dir is not None else None
         self._lock = threading.RLock()

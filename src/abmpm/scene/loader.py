@@ -112,10 +112,18 @@ def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any]
     """The parsed TOML of a scene file or a built-in scene, not yet validated:
     ``(document, label for errors, path of the file)``. SceneError for a missing or
     unreadable file, a TOML syntax error or an unknown built-in name."""
+    if not isinstance(path_or_name, (str, os.PathLike)):
+        raise SceneError(f"expected a scene file or a built-in name, got {path_or_name!r}")
     text = os.fspath(path_or_name)
+    if not text.strip():
+        raise SceneError("the scene's file or built-in name is empty")
     path = Path(text).expanduser()
     label = text
-    if not path.is_file():
+    try:
+        is_file = path.is_file()
+    except OSError as exc:  # a name too long for the file system, ...
+        raise SceneError(f"{text[:60]}{'...' if len(text) > 60 else ''}: {exc.strerror or exc}") from None
+    if not is_file:
         looks_like_name = path.suffix == "" and not (os.sep in text or (os.altsep and os.altsep in text))
         if path.exists() and not (looks_like_name and text in list_builtin_scenes()):
             raise SceneError(f"{text}: is not a file")

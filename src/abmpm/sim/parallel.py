@@ -54,9 +54,9 @@ CACHE_LINE_WORDS = 16
 REACH_STRIDE = wp.constant(CACHE_LINE_WORDS)  # ints between two threads' reached spans
 
 
-def default_threads() -> int:
-    """``ABMPM_THREADS`` if set, else every core this process may use."""
-    value = os.environ.get(THREADS_ENV)
+def default_threads(from_env: bool = True) -> int:
+    """``ABMPM_THREADS`` if set (and ``from_env``), else every core this process may use."""
+    value = os.environ.get(THREADS_ENV) if from_env else None
     if value:
         try:
             n = int(value)

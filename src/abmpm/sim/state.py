@@ -141,3 +141,41 @@ def _default(name: str, n: int) -> np.ndarray:
     if name in ("C",):
         return np.zeros((n, 3, 3), dtype=np.float32)
     return np.zeros((n, 3), dtype=np.float32)
+
+
+def check_fields(arrays: dict, materials: int, colliders: int, levels: tuple[int, ...] = (0, 1),
+                 domain: tuple | None = None) -> None:
+    """ValueError naming the field for particle values a step cannot take: not numbers,
+    not finite, a mass or volume not above 0, a material or collider index out of range,
+    a level this mode has no grid for, a position outside ``domain`` (lo, hi). Fields
+    absent from ``arrays`` are not checked."""
+    for k, a in arrays.items():
+        a = np.asarray(a)
+        if a.dtype.kind not in "biuf":
+            raise ValueError(f"{k}: expected numbers, got an array of {a.dtype}")
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise ValueError(f"{k}: {int((~np.isfinite(a.reshape(len(a), -1))).any(axis=1).sum())} particles "
+                             "have a NaN or infinite value")
+        with np.errstate(over="ignore"):
+            beyond = a.dtype.kind == "f" and not np.isfinite(a.astype(np.float32)).all()
+        if beyond:
+            raise ValueError(f"{k}: a value beyond single precision (~3.4e38)")
+        if k in ("material", "level", "surface_body", "id", "family") and (a != np.round(a)).any():
+            raise ValueError(f"{k}: expected whole numbers")
+    bounds = {"mass": "positive", "volume": "positive", "material": (0, materials - 1),
+              "surface_body": (-1, colliders - 1), "level": (min(levels), max(levels))}
+    for k, bound in bounds.items():
+        if k not in arrays or len(np.asarray(arrays[k])) == 0:
+            continue
+        a = np.asarray(arrays[k])
+        if bound == "positive" and a.min() <= 0:
+            raise ValueError(f"{k}: every value must be > 0, got {a.min():g}")
+        if bound != "positive" and (a.min() < bound[0] or a.max() > bound[1]):
+            raise ValueError(f"{k}: values from {bound[0]} to {bound[1]} here, got {a.min():g} to {a.max():g}")
+    if domain is not None and "x" in arrays:
+        x = np.asarray(arrays["x"])
+        out = ((x < np.asarray(domain[0])) | (x > np.asarray(domain[1]))).any(axis=1)
+        if out.any():
+            raise ValueError(f"x: {int(out.sum())} particles lie outside the domain")
+    if "level" in arrays and not np.isin(np.asarray(arrays["level"]), levels).all():
+        raise ValueError(f"level: this mode's particles are of level {' or '.join(map(str, levels))}")

@@ -1,0 +1,34 @@
+"""Argument types the commands share (``abmpm`` and ``abmpm bench``, which parses its
+own options): whole counts, and threads no more than this process's CPU cores."""
+
+from __future__ import annotations
+
+import argparse
+
+from abmpm.sim.parallel import default_threads
+
+
+def positive_int(text: str, what: str) -> int:
+    """An argparse type: a whole number of ``what``, at least 1."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of {what}, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
+def threads_arg(text: str) -> int:
+    """--threads N: at most the CPU cores this process may use (each thread beyond the
+    first keeps its own copy of the grids' sums)."""
+    n = positive_int(text, "threads")
+    cores = default_threads(from_env=False)
+    if n > cores:
+        raise argparse.ArgumentTypeError(f"{n} threads: more than the {cores} CPU cores this process may use")
+    return n
+
+
+def frames_arg(text: str) -> int:
+    """--frames N"""
+    return positive_int(text, "frames")
