@@ -18,19 +18,24 @@ from abmpm.scene import model as sm  # noqa: E402
 FPS = 40.0
 
 
-@pytest.fixture(scope="module")
-def usd_run(tmp_path_factory):
-    """Water poured on a sheet that moves down: particles, a moving collider, and the
-    water's surface, 3 frames."""
-    scene = sm.Scene(
-        name="usd",
+def water_on_a_falling_sheet(name: str, **output) -> sm.Scene:
+    """Water poured on a sheet that moves down at 0.5 m/s, written to USD."""
+    return sm.Scene(
+        name=name,
         simulation=sm.SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.04, fps=FPS),
         materials=[sm.Fluid(name="water")],
         bodies=[sm.BoxBody(material="water", min=(0.1, 0.2, 0.1), max=(0.3, 0.3, 0.3))],
         colliders=[sm.SheetCollider(size=(0.3, 0.3), center=(0.2, 0.15, 0.2),
                                     motion=sm.Motion(velocity=(0.0, -0.5, 0.0)))],
-        output=sm.Output(usd=True, surface=True, preview=False),
+        output=sm.Output(usd=True, preview=False, **output),
     )
+
+
+@pytest.fixture(scope="module")
+def usd_run(tmp_path_factory):
+    """Water poured on a sheet that moves down: particles, a moving collider, and the
+    water's surface, 3 frames."""
+    scene = water_on_a_falling_sheet("usd", surface=True)
     out = tmp_path_factory.mktemp("usd") / "run"
     run(scene, out, frames=3, device="cpu", progress=False)
     return out, Usd.Stage.Open(str(out / "particles.usd"))
@@ -89,15 +94,7 @@ def test_a_resumed_run_keeps_the_colliders_of_every_frame(tmp_path):
     """Resumed at frame 2, the USD still holds the moving sheet of frames 0-2 (it held
     only the frames simulated after the resume until 2026-11-27, so USD showed the
     sheet's frame-3 pose in frames 0-2)."""
-    scene = sm.Scene(
-        name="usd_resumed",
-        simulation=sm.SimulationSettings(domain_max=(0.4, 0.4, 0.4), dx=0.04, fps=FPS),
-        materials=[sm.Fluid(name="water")],
-        bodies=[sm.BoxBody(material="water", min=(0.1, 0.2, 0.1), max=(0.3, 0.3, 0.3))],
-        colliders=[sm.SheetCollider(size=(0.3, 0.3), center=(0.2, 0.15, 0.2),
-                                    motion=sm.Motion(velocity=(0.0, -0.5, 0.0)))],
-        output=sm.Output(usd=True, preview=False),
-    )
+    scene = water_on_a_falling_sheet("usd_resumed")
     out = tmp_path / "run"
     run(scene, out, frames=2, device="cpu", progress=False)
     run(scene, out, frames=4, device="cpu", progress=False, resume=True)
