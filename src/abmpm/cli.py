@@ -198,7 +198,7 @@ def _cmd_compare(args) -> int:
     """``abmpm compare SCENE`` and ``abmpm paper``: the modes of a scene side by side."""
     if args.threads:
         os.environ["ABMPM_THREADS"] = str(args.threads)
-    modes = tuple(args.modes or ("original", "adaptive", "finest"))
+    modes = tuple(dict.fromkeys(args.modes or ("original", "adaptive", "finest")))  # each mode once
     con = _stderr()
 
     def on_run(i, n, scene, mode, run_dir):

@@ -79,7 +79,7 @@ def choose_device(requested: str | None) -> str:
         return "cuda:0" if has_cuda else "cpu"
     if requested == "cpu":
         return "cpu"
-    if requested.startswith("cuda"):
+    if requested == "cuda" or requested.startswith("cuda:"):
         if not has_cuda:
             raise AbmpmError(f"device {requested!r} requested but no CUDA device is available (use 'cpu')")
         if requested == "cuda":

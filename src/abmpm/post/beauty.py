@@ -192,7 +192,7 @@ def render_beauty(
     seconds per frame."""
     out = Path(out_dir)
     if not out.is_dir():
-        raise OutputError(f"{out}: no such output folder")
+        raise OutputError(f"{out}: not an output folder" if out.exists() else f"{out}: no such output folder")
     scene = scene_from_folder(out)
     mi = import_mitsuba(settings.variant, settings.threads)
     with contextlib.nullcontext(bar) if bar is not None else Progress(progress) as own:

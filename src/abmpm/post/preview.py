@@ -220,7 +220,7 @@ def render_folder(out_dir: str | os.PathLike, progress: bool = False) -> dict:
     (and the collider PLYs next to them, when the scene has colliders)."""
     out = Path(out_dir)
     if not out.is_dir():
-        raise OutputError(f"{out}: no such output folder")
+        raise OutputError(f"{out}: not an output folder" if out.exists() else f"{out}: no such output folder")
     scene = scene_from_folder(out)
     source = disk_frames(out)
     if not source:

@@ -186,7 +186,7 @@ class Viewer:
     def _scan_folder(self) -> None:
         out = self.out
         if not out.is_dir():
-            raise OutputError(f"{out}: no such output folder")
+            raise OutputError(f"{out}: not an output folder" if out.exists() else f"{out}: no such output folder")
         frames = numbered(out / FRAMES_DIR, FRAME_RE)
         if not frames:
             raise OutputError(f"{out}: no particle frames in {out / FRAMES_DIR} to view")
