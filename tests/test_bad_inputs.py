@@ -292,6 +292,8 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
                                      ("simulation.refinement.boxes[0]", "two corners")),
     # explicit viscosity's step limit (dx^2 rho / eta) past 1e8 steps a frame
     "absurd_viscosity": (sub("viscosity = 0.0", "viscosity = 1.0e15"), ("materials[0].viscosity", "sets the time step")),
+    # gamma = 1e5 hung (J^-gamma by gamma multiplications per particle and step)
+    "absurd_gamma": (sub("gamma = 7.0", "gamma = 1.0e5"), ("materials[0].gamma", "100")),
     "inverted_domain": (sub("domain_max = [0.4, 0.4, 0.4]", "domain_max = [0.4, -0.4, 0.4]"),
                         ("simulation.domain_max", "must exceed domain_min")),
     # ---- numbers too big (or too small) for the solver, or that break time stepping

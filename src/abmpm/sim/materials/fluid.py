@@ -75,7 +75,7 @@ MODEL = MaterialModel(
     doc="Weakly compressible fluid: p = K (1/J^gamma - 1)/gamma plus Newtonian viscosity.",
     parameters=(
         Parameter("bulk_modulus", 2.0e5, "bulk modulus K, Pa", gt=0.0),
-        Parameter("gamma", 7.0, "Tait exponent of the equation of state", ge=1.0),
+        Parameter("gamma", 7.0, "Tait exponent of the equation of state (water: 7)", ge=1.0, le=100.0),
         Parameter("viscosity", 0.0, "dynamic viscosity, Pa s", ge=0.0),
     ),
     device_fields={"bulk": float, "gamma": float, "viscosity": float},
