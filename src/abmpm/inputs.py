@@ -23,7 +23,7 @@ from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
 from .sim.config import SolverConfig
-from .sim.materials import MaterialParams, material_params, wave_speed
+from .sim.materials import MaterialParams, kinematic_viscosity, material_params, wave_speed
 
 
 def solver_config(scene: Scene, mode: str) -> SolverConfig:
@@ -50,7 +50,7 @@ def max_kinematic_viscosity(scene: Scene) -> float:
     """Largest viscosity / density (m^2/s) among the materials that bodies use (the
     explicit viscous step limit; 0 where none is viscous)."""
     used = {b.material for b in scene.bodies}
-    return max((getattr(m, "viscosity", 0.0) / m.density for m in scene.materials if m.name in used), default=0.0)
+    return max((kinematic_viscosity(m) for m in scene.materials if m.name in used), default=0.0)
 
 
 def max_wave_speed(scene: Scene) -> float:

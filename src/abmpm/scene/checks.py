@@ -25,7 +25,7 @@ import warp as wp
 from abmpm.errors import AbmpmError, SceneError
 from abmpm.geometry.sampling import shape_bounds_and_inside
 from abmpm.runtime import cfl_time_step, choose_device
-from abmpm.sim.materials import wave_speed
+from abmpm.sim.materials import kinematic_viscosity, wave_speed
 
 __all__ = ["memory_estimate", "available_memory", "check_feasible", "GRID_NODE_BYTES", "PARTICLE_BYTES"]
 
@@ -226,8 +226,8 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         rot = math.hypot(*b.angular_velocity) * diag
         body_speeds.append((lin + rot, i, "velocity" if lin >= rot else "angular_velocity"))
     v, i, vkey = max(body_speeds)
-    nu, kv = max(((getattr(m, "viscosity", 0.0) / m.density, k) for k, m in enumerate(scene.materials)
-                  if m.name in used), default=(0.0, 0))
+    nu, kv = max(((kinematic_viscosity(m), k) for k, m in enumerate(scene.materials) if m.name in used),
+                 default=(0.0, 0))
     try:
         dt = cfl_time_step(st.cfl, st.max_dt, dx, c + v, nu)
         steps = frame_dt / dt

@@ -71,6 +71,12 @@ def wave_speed(m) -> float:
     return BY_NAME[m.model].wave_speed(m)
 
 
+def kinematic_viscosity(m) -> float:
+    """Viscosity over density of a scene material, m^2/s (0 without viscosity): the
+    explicit viscous step limit uses it."""
+    return getattr(m, "viscosity", 0.0) / m.density
+
+
 def uses_deformation_gradient(name: str) -> bool:
     """False for models whose F stays the identity and whose J is their ``history``."""
     return BY_NAME[name].uses_F
@@ -215,7 +221,7 @@ def model_ids(materials) -> tuple[int, ...]:
 
 __all__ = [
     "REGISTRY", "MODEL_IDS", "BY_NAME", "MaterialModel", "Parameter", "MaterialParams", "Deformation",
-    "material_params", "wave_speed", "uses_deformation_gradient", "lame", "pressure_from_J",
+    "material_params", "wave_speed", "kinematic_viscosity", "uses_deformation_gradient", "lame", "pressure_from_J",
     "kirchhoff_stress", "update_deformation", "Dispatch", "dispatch", "model_ids", "ALL_MODELS",
     "volume_ratio",
 ]
