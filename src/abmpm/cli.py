@@ -35,13 +35,13 @@ import warp as wp
 from rich.table import Table
 
 import abmpm
+from abmpm.arguments import frames_arg as _frames_arg
+from abmpm.arguments import threads_arg as _threads_arg
 from abmpm.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, check_threads_env
 from abmpm.cli_common import esc as _esc
-from abmpm.cli_common import frames_arg as _frames_arg
 from abmpm.cli_common import port_arg as _port_arg
 from abmpm.cli_common import stderr_console as _stderr
 from abmpm.cli_common import stdout_console as _stdout
-from abmpm.cli_common import threads_arg as _threads_arg
 from abmpm.cli_post import add_parsers as add_post_parsers
 from abmpm.cli_sweep import add_parsers as add_sweep_parsers
 from abmpm.compare import PAPER_SCENES, compare, run_paper

@@ -1,4 +1,5 @@
-"""What the commands of ``abmpm`` share: exit codes, the consoles, argument types."""
+"""What the commands of ``abmpm`` share: exit codes, the consoles, the port argument and the threads check
+(the count types are in ``arguments.py``, which ``abmpm bench`` shares)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import argparse
 from rich.console import Console
 from rich.markup import escape
 
-from abmpm.arguments import frames_arg, positive_int, threads_arg  # noqa: F401 (the commands' types)
 from abmpm.errors import AbmpmError
 from abmpm.sim.parallel import default_threads
 

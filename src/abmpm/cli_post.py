@@ -16,7 +16,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
-from abmpm.cli_common import positive_int, threads_arg
+from abmpm.arguments import positive_int, threads_arg
 from abmpm.errors import AbmpmError
 from abmpm.io.blender import write_blend
 from abmpm.io.writers.surface import surface_folder

@@ -7,12 +7,12 @@ from pathlib import Path
 
 from rich.table import Table
 
+from abmpm.arguments import frames_arg as _frames_arg
+from abmpm.arguments import threads_arg as _threads_arg
 from abmpm.cli_common import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK
 from abmpm.cli_common import esc as _esc
-from abmpm.cli_common import frames_arg as _frames_arg
 from abmpm.cli_common import stderr_console as _stderr
 from abmpm.cli_common import stdout_console as _stdout
-from abmpm.cli_common import threads_arg as _threads_arg
 from abmpm.sweep import feasible_on, import_ray, parse_set, plan_sweep, run_sweep
 
 __all__ = ["add_parsers"]
