@@ -32,7 +32,7 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
 KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.collider_set",
                   "abmpm.sim.face_cells", "abmpm.sim.reconstruct",
-                  "abmpm.sim.refine", "abmpm.sim.sorting", "abmpm.sim.time_levels"]
+                  "abmpm.sim.refine", "abmpm.sim.sorting", "abmpm.sim.stiffness", "abmpm.sim.time_levels"]
 # Turing (T4, RTX 20xx), the oldest Warp targets, and Hopper (H100, H200), the newest
 # the code has run on (docs/benchmarks.md); the transfers' compile-time variants are
 # modules of their own, compiled one by one below. Ampere (sm_86) was compiled here

@@ -46,7 +46,7 @@ def impact_scene() -> abmpm.Scene:
     """Water at 20 m/s onto a turned-over sheet (test_cfl.py): the rest of a frame is
     re-cut many times, in the middle of segments."""
     text = (Path(__file__).parent / "test_cfl.py").read_text().split('IMPACT = """')[1].split('"""')[0]
-    return sm.Scene.model_validate(tomllib.loads(text.format(speed=20.0, separation=0.0, duration=0.1)))
+    return sm.Scene.model_validate(tomllib.loads(text.format(speed=20.0, separation=0.0, duration=0.1, stiffening="particle")))
 
 
 @pytest.fixture

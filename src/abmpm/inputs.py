@@ -38,6 +38,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         reconstruct=st.refinement.reconstruct,
         surface_threshold=st.refinement.surface_threshold,
         time_steps=st.refinement.time_steps,
+        stiffening=st.stiffening,
         cuda_graph=st.cuda_graph,
     )
 

@@ -27,6 +27,7 @@ from .sim.materials import uses_deformation_gradient
 from .sim.refine import merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
 from .sim.state import DYNAMIC, STATIC, ParticleState, check_fields
+from .sim.stiffness import SLACK as STIFFENING_SLACK
 from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
@@ -35,9 +36,7 @@ SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory cohe
 MIN_DT_FRACTION = 1.0e-3
 # particle fields renamed since earlier checkpoints were written
 LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_side", "cbody": "surface_body"}
-# How far the sound speed of compressed fluid may rise before the time step follows
-# it (see Simulation.cfl_dt): compression to J > ~0.79 (gamma = 7) costs no steps.
-STIFFENING_SLACK = 2.0
+
 
 @dataclass(frozen=True)
 class Particles:

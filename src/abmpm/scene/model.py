@@ -127,6 +127,11 @@ class SimulationSettings(_Strict):
     fps: PositiveFloat = 30.0
     cfl: float = Field(0.4, gt=0, le=1.0, description="time step = cfl * dx / wave speed")
     max_dt: PositiveFloat = 1e-3
+    stiffening: Literal["particle", "node"] = Field(
+        "particle", description="CFL signal of compressed fluid: particle: the most compressed particle's sound "
+        "speed; node: a bound of the grid's fastest mode, which one compressed particle among others raises less "
+        "(fewer steps; docs/method.md, 'Time step')"
+    )
     seed: int = Field(0, ge=0, description="seed of the particle jitter")
     device: str | None = Field(None, description="'cpu', 'cuda' or 'cuda:N'; default: cuda when available")
     walls: Walls = Walls()

@@ -32,6 +32,9 @@ class SolverConfig:
     time_steps: str = "global"
     """Adaptive mode: "per_level" lets the level-0 particles far from the fine level take
     the coarse step (sim/time_levels.py); "global": every particle takes the finest step."""
+    stiffening: str = "particle"
+    """The CFL signal of compressed fluid: "particle", the largest sound-speed growth of any
+    particle; "node", that growth bounded by the grid's fastest mode (sim/stiffness.py)."""
     cuda_graph: bool = False
     """Run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
     a warning on the CPU, where a replayed graph would run on one thread)."""

@@ -38,6 +38,7 @@ from .grid import GridSpec, node_index, node_position, stencil_node, stencil_slo
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
+from .stiffness import SLACK
 from .stencil import STORAGE, Stencil, offset_at, weight_at
 from .variant import variant
 
@@ -175,6 +176,7 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         coarse: GridSpec,  # the coarse grid and its colors: a level-0 particle's band
         coarse_color: ColorField,
         on_fine: wp.array(dtype=wp.int32),  # 1: a level-0 particle the fine grid moves (p2g_sparse)
+        stiff: wp.array(dtype=float),  # each particle's stiffening, for sim/stiffness.py (length 1: not kept)
         signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
     ):
         p = wp.tid() + first
@@ -247,12 +249,17 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
                 s.surface_body[p] = c.body
         # The fastest particle, and the most compressed fluid's sound speed over its
         # speed at rest, set the next step's CFL time step; a non-finite velocity
-        # reads as infinitely fast, which stops the run.
+        # reads as infinitely fast, which stops the run. Beyond the CFL number's
+        # margin the stiffening is bounded node by node (sim/stiffness.py).
         speed = wp.length(new_v)
         if not wp.isfinite(speed):
             speed = FAST
         wp.atomic_max(signal, 0, speed)
-        wp.atomic_max(signal, 1, wp.static(sound_speed_ratio)(mat, s.history[p]))
+        stiffening = wp.static(sound_speed_ratio)(mat, s.history[p])
+        if stiff.shape[0] > 1:  # sim/stiffness.py bounds what lies beyond the margin
+            stiff[p] = stiffening
+            stiffening = wp.min(stiffening, SLACK)
+        wp.atomic_max(signal, 1, stiffening)
         s.x[p] = xn
         s.v[p] = new_v
         s.C[p] = new_C

@@ -55,6 +55,7 @@ def grid_update(
     chunk: int,  # nodes per kernel thread
     sums: ThreadSums,  # the other CPU threads' P2G sums
     slow: SlowNodes,  # the slow set's share of the coarse nodes (sim/time_levels.py), if a block is open
+    kept_m: wp.array(dtype=float),  # the node masses, kept for the stiffening bound after G2P (sim/stiffness.py)
 ):
     # Warp's CPU backend spends a few ns per kernel thread, as much as a node's
     # update: a chunk of nodes per thread there, one on a GPU
@@ -78,6 +79,8 @@ def grid_update(
             vi = domain_walls(g, xi, vi)
             keep_slow_share(slow, n, vi)
         grid_v[n] = vi
+        if kept_m.shape[0] > 1:
+            kept_m[n] = m
         grid_mv[n] = wp.vec3(0.0)
         grid_m[n] = 0.0
         if clear_overlap != 0:

@@ -320,6 +320,9 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
 _MAKERS = {"dense": _make_p2g_dense, "level0": _make_p2g_level0, "overlap": _make_p2g_overlap,
            "sparse": _make_p2g_sparse}
 PASSES = tuple(_MAKERS)  # the P2G passes, by name
+# which particles each pass visits (a level, None: all) and its name in a profile
+PASS_LEVEL = {"dense": None, "level0": 0, "overlap": 1, "sparse": None}
+PASS_LABEL = {"dense": "", "level0": " (level 0)", "overlap": " (level 1, overlap)", "sparse": ""}
 
 
 @functools.cache

@@ -21,7 +21,7 @@ CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
 6. G2P of each particle from its own level's grid, with boundary velocities at
    incompatible nodes (Eqs. 11-12, 23-25), deformation update and return mapping
    (Eqs. 7, 13-14), advection that never crosses a collider; the fastest particle
-   into this substep's CFL signal slot.
+   into this substep's CFL signal slot, its stiffening bounded node by node (sim/stiffness.py).
 
 ``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a
 captured graph), ``end_segment()`` reads the per-substep signals back at once.
@@ -47,12 +47,13 @@ from .g2p import g2p_kernel
 from .grid import Grid
 from .grid_update import grid_update
 from .materials import MaterialParams, model_ids
-from .p2g import p2g_kernel
+from .p2g import PASS_LABEL, PASS_LEVEL, p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
 from .segments import Graphs, SegmentStart, Signals, buffer_key
 from .sorting import level_ranges, sort_by_cell
 from .state import FIELDS, ParticleState
+from .stiffness import StiffnessSignal
 from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
 wp.set_module_options({"enable_backward": False})
@@ -60,11 +61,6 @@ wp.set_module_options({"enable_backward": False})
 # The longest segment (substeps between host points): segments end at every refinement step,
 # in every mode, so that their lengths repeat and graphs are reused.
 SEGMENT_MAX = REFINE_EVERY
-
-# the P2G passes (sim/p2g.py): which particles each visits (a level, None: all) and their profile names
-_P2G_LEVEL = {"dense": None, "level0": 0, "overlap": 1, "sparse": None}
-_P2G_LABEL = {"dense": "", "level0": " (level 0)", "overlap": " (level 1, overlap)", "sparse": ""}
-
 
 class MPMSolver:
     def __init__(self, config: SolverConfig, materials: list[MaterialParams], device,
@@ -107,6 +103,7 @@ class MPMSolver:
         self._dt_host = 0.0
         self._signals = Signals(SEGMENT_MAX, self.launcher.threads, device)  # the CFL signal of each substep
         self.signal = self._signals.array
+        self.stiffness = StiffnessSignal(device, config.stiffening == "node")  # bounded node by node, after G2P
         # level (None: all) -> [(first, count)], one range per level once sorted (_find_level_ranges)
         self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
@@ -255,7 +252,7 @@ class MPMSolver:
             return None
         g = self.grid
         common = [self.materials, g.spec, self.collider_arrays, g.color], [g.v, state.arrays(), self._cmask, g.spec,
-                                                                           g.color, self._no_occ]
+                                                                           g.color, self._no_occ, self.stiffness.none]
         return self.slow.gather(state, self._ranges["slow"][0], g2p_kernel(False, self.cpic, self.models), common)
 
     def begin_segment(self, state: ParticleState, time: float, dt: float, substeps: int = 1) -> None:
@@ -298,6 +295,7 @@ class MPMSolver:
         self.p2g(state)  # 4. P2G (Eqs. 8-10)
         self.grid_update()  # 5. grid update (Eqs. 3-4, 22)
         self.g2p(state, self._signals.slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
+        self.stiffness.run(self.launcher, state, self.grids, self._ranges, self._signals.slots[self._substep][0])
         self._substep += 1
         self._steps += 1
 
@@ -354,6 +352,7 @@ class MPMSolver:
             self._occ = wp.zeros(self.grid.capacity, dtype=wp.int32, device=self.device)
         for g in self.grids:
             self.launcher.private_grids(g.level, g.mv, g.m)
+        self.stiffness.reserve(self.grids, state.capacity)
         state.arrays()
         self._find_level_ranges(state)
 
@@ -367,7 +366,7 @@ class MPMSolver:
         if self.slow is not None:
             arrays += [self.slow.nodes.m, self.slow.nodes.p, self.slow.nodes.f]
         arrays += [self._tau, self._cmask, self._on_fine, self._occ, self._dt, self.signal, self.materials,
-                   self.collider_arrays.bodies, self.collider_arrays.face_body]
+                   self.collider_arrays.bodies, self.collider_arrays.face_body, *self.stiffness.buffers()]
         for g in self.grids:
             arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
         arrays += self.launcher.private_arrays()
@@ -395,11 +394,11 @@ class MPMSolver:
             common = [s.arrays(), self.materials, g.spec, g.color, self._dt, self._cmask]
             kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ],
                     "sparse": [self._tau, self._on_fine]}[name]  # the stress kept for the fine pass; the overlap marks
-            for site, (first, count) in enumerate(self._ranges[_P2G_LEVEL[name]]):
+            for site, (first, count) in enumerate(self._ranges[PASS_LEVEL[name]]):
                 self.launcher.launch(kernel, count,
                                      lambda part, first, count: [*common, *private.parts[part],
                                                                  private.reach[part], *kept],
-                                     start=first, label=f"P2G {g.name}{_P2G_LABEL[name]}",
+                                     start=first, label=f"P2G {g.name}{PASS_LABEL[name]}",
                                      min_range=MIN_TRANSFER_RANGE, site=site)
 
     def grid_update(self) -> None:
@@ -412,7 +411,8 @@ class MPMSolver:
             self.launcher.launch(grid_update, -(-g.node_count // chunk),
                                  [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
                                   self._occ if coarse_adaptive else self._no_occ, int(coarse_adaptive),
-                                  self.grids[-1].dx, g.node_count, chunk, private.sums, slow],
+                                  self.grids[-1].dx, g.node_count, chunk, private.sums, slow,
+                                  self.stiffness.kept_m(g.level)],
                                  label=f"grid update {g.name}", min_range=64)
             if private.extra > 0:  # every part's reach empty again
                 self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label=f"reset {g.name}")
@@ -423,7 +423,7 @@ class MPMSolver:
         for g in self.grids:
             kernel = g2p_kernel(g.sparse, self.cpic, self.models)
             common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask,
-                      self.grid.spec, self.grid.color, self._on_fine]
+                      self.grid.spec, self.grid.color, self._on_fine, self.stiffness.stiff]
             # fine: a launch per level's fast range (on_fine marks the level-0 particles it moves)
             for site, (first, count) in enumerate(self._ranges[None] if g.sparse else self._ranges[g.level]):
                 self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
