@@ -130,7 +130,7 @@ class MPMSolver:
         on first use, in a module of its own: ``load_kernels`` loads them all before
         the first segment, so that a level reached only later in the run (the fine
         grid's) never compiles in the middle of it."""
-        kernels = [reset_reach, grid_update]
+        kernels = [reset_reach, grid_update, *self.stiffness.kernels()]
         kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
         kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
         kernels += [p2g_slow_kernel(self.cpic, self.models)] if self.slow is not None else []

@@ -144,6 +144,10 @@ class StiffnessSignal:
                 self._nodes[g.level] = tuple(wp.zeros(g.m.shape[0], dtype=float, device=self.device)
                                              for _ in range(3))
 
+    def kernels(self) -> list:
+        """The passes' kernels, where they run (loaded before the first segment)."""
+        return [scatter_excess, gather_excess, clear_excess] if self.enabled else []
+
     def buffers(self) -> list[wp.array]:
         """Every buffer the passes use (what a captured substep bakes in)."""
         return [self.stiff] + [a for arrays in self._nodes.values() for a in arrays]
