@@ -48,12 +48,18 @@ ONE_THREAD = 1 << 30  # min_range of a launch that must run as one part (the sum
 
 
 @wp.func
-def excess_weight(s: ParticleArrays, p: int, stiff: wp.array(dtype=float)):
-    # sqrt(e_p m_p), 0 for a particle the margin takes
+def excess_weight(s: ParticleArrays, p: int, level: int, stiff: wp.array(dtype=float)):
+    # sqrt(e_p m_p); 0 for a particle the margin takes, or of another level
     r = stiff[p]
-    if r <= SLACK:
+    if r <= SLACK or s.level[p] != level:
         return 0.0
     return wp.sqrt((r * r - SLACK_SQ) * s.mass[p])
+
+
+@wp.func
+def node_at(g: GridSpec, st: Stencil, i: int, j: int, k: int):
+    # storage index of stencil node (i, j, k) on either storage (-1: inactive)
+    return node_index(g, st.base[0] + i, st.base[1] + j, st.base[2] + k)
 
 
 @wp.func
@@ -66,16 +72,14 @@ def gradient_length(st: Stencil, i: int, j: int, k: int):
 def scatter_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff: wp.array(dtype=float),
                    excess: wp.array(dtype=float), stiff_m: wp.array(dtype=float)):
     p = wp.tid() + first
-    if s.level[p] != level:
-        return
-    a = excess_weight(s, p, stiff)
+    a = excess_weight(s, p, level, stiff)
     if a == 0.0:
         return
     st = dense_stencil(g, s.x[p])
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                n = node_index(g, st.base[0] + i, st.base[1] + j, st.base[2] + k)
+                n = node_at(g, st, i, j, k)
                 if n >= 0:
                     wp.atomic_add(excess, n, a * gradient_length(st, i, j, k))
                     wp.atomic_add(stiff_m, n, weight_at(st, i, j, k) * s.mass[p])
@@ -86,9 +90,7 @@ def gather_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff:
                   excess: wp.array(dtype=float), stiff_m: wp.array(dtype=float), kept_m: wp.array(dtype=float),
                   signal: wp.array(dtype=float)):
     p = wp.tid() + first
-    if s.level[p] != level:
-        return
-    a = excess_weight(s, p, stiff)
+    a = excess_weight(s, p, level, stiff)
     if a == 0.0:
         return
     st = dense_stencil(g, s.x[p])
@@ -96,7 +98,7 @@ def gather_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff:
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                n = node_index(g, st.base[0] + i, st.base[1] + j, st.base[2] + k)
+                n = node_at(g, st, i, j, k)
                 if n >= 0:
                     m = wp.max(kept_m[n], stiff_m[n])
                     if m > 0.0:
@@ -109,13 +111,13 @@ def gather_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff:
 def clear_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff: wp.array(dtype=float),
                  excess: wp.array(dtype=float), stiff_m: wp.array(dtype=float)):
     p = wp.tid() + first
-    if s.level[p] != level or stiff[p] <= SLACK:
+    if excess_weight(s, p, level, stiff) == 0.0:
         return
     st = dense_stencil(g, s.x[p])
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                n = node_index(g, st.base[0] + i, st.base[1] + j, st.base[2] + k)
+                n = node_at(g, st, i, j, k)
                 if n >= 0:
                     excess[n] = 0.0
                     stiff_m[n] = 0.0
