@@ -38,8 +38,8 @@ from .grid import GridSpec, node_index, node_position, stencil_node, stencil_slo
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
-from .stiffness import SLACK
 from .stencil import STORAGE, Stencil, offset_at, weight_at
+from .stiffness import SLACK
 from .variant import variant
 
 wp.set_module_options({"enable_backward": False})

@@ -147,8 +147,9 @@ def check_fields(arrays: dict, materials: int, colliders: int, levels: tuple[int
                  domain: tuple | None = None) -> None:
     """ValueError naming the field for particle values a step cannot take: not numbers,
     not finite, a mass or volume not above 0, a material or collider index out of range,
-    a level this mode has no grid for, a position outside ``domain`` (lo, hi). Fields
-    absent from ``arrays`` are not checked."""
+    a level outside ``levels`` (the levels this mode has grids for: 0, 1 or both, so their
+    range), a position outside ``domain`` (lo, hi). Fields absent from ``arrays`` are not
+    checked."""
     for k, a in arrays.items():
         a = np.asarray(a)
         if a.dtype.kind not in "biuf":
@@ -177,5 +178,3 @@ def check_fields(arrays: dict, materials: int, colliders: int, levels: tuple[int
         out = ((x < np.asarray(domain[0])) | (x > np.asarray(domain[1]))).any(axis=1)
         if out.any():
             raise ValueError(f"x: {int(out.sum())} particles lie outside the domain")
-    if "level" in arrays and not np.isin(np.asarray(arrays["level"]), levels).all():
-        raise ValueError(f"level: this mode's particles are of level {' or '.join(map(str, levels))}")
