@@ -87,6 +87,24 @@ def test_slit_outside_the_paper_drains_like_finest(slit_cells):
 
 
 @pytest.mark.slow
+def test_slit_at_b3_drains_like_finest_at_one_step():
+    # At a sheet the mass through depends on the number of steps in any MPM (a minimal
+    # MLS-MPM outside our code drains a hole 0.161 / 0.102 at cfl 0.4 / 0.1:
+    # docs/prototypes/minimal_hole_drain.py), so at each mode's own step the ratio to finest
+    # mixes the level interface with the step count. Here every mode takes one fixed step
+    # (cfl 0.1 at the sound speed, below every mode's own): the 1-cell slit at b = 3, 0.5 s,
+    # measured 0.1566 against finest's 0.1553 (1.008) in 1,680 steps each; the bound
+    # is 10%. (At one step the 1-cell slit at b = 2 reads 0.74 and the round holes 1.08-1.25:
+    # docs/method.md, "Outside our code, and the modes at one step"; not asserted, open.)
+    r = run_slit(1.0, 3, 0.5, "cpu", step=0.1)
+    assert r["adaptive"]["steps"] == r["finest"]["steps"], r  # the step is the fixed one
+    assert r["finest"]["through"] > 0.05, r  # the case is what it says: water goes through
+    assert abs(r["through_ratio"] - 1.0) < 0.10, r
+    # the coarse grid alone clogs the slit (0 at one step, 0.025 at its own)
+    assert r["original"]["through"] < 0.5 * r["finest"]["through"], r
+
+
+@pytest.mark.slow
 def test_round_hole_at_b3_takes_finests_steps():
     # The plate spanning the box with a round hole one coarse cell across, b = 3, 0.5 s.
     # Where coarse and refined water met on the plate, the coarse grid moved its

@@ -277,6 +277,17 @@ def _seconds(text: str) -> float:
     return t
 
 
+def _one_step(text: str) -> float:
+    """--one-step: a CFL number above 0 and at most 1."""
+    try:
+        c = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a CFL number, got {text!r}") from None
+    if not math.isfinite(c) or not 0.0 < c <= 1.0:
+        raise argparse.ArgumentTypeError(f"must lie in (0, 1], got {text}")
+    return c
+
+
 def run_bench(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="abmpm bench", description=__doc__)
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
@@ -294,6 +305,10 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--frames", type=frames_arg, default=10, help="frames per mode in the adaptive suite")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--threads", type=threads_arg, default=None, help="CPU threads (default: every core)")
+    ap.add_argument("--one-step", type=_one_step, default=None, metavar="CFL",
+                    help="interface suite: run the plate cases in every mode at one fixed step, CFL fine cells a "
+                         "step at the sound speed (0.1 keeps it below every mode's own step), so that the ratios "
+                         "to finest measure the level interface apart from the number of steps")
     ap.add_argument("--profile", action="store_true",
                     help="adaptive suite: time every kernel and phase of the step (ms per step) and how "
                          "evenly the CPU threads share each (busiest thread over the mean)")
@@ -306,6 +321,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         if args.json.is_dir() or not os.access(args.json.parent, os.W_OK):
             ap.error(f"--json {args.json}: not a file that can be written")
 
+    if args.one_step is not None and args.suite != "interface":
+        ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
@@ -375,7 +392,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
                   + (f"lists {row['lists_ns']} ns, " if row["lists_built"] else "no lists (they would not pay), ")
                   + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
-    interface = run_interface_suite(device) if args.suite == "interface" else {}
+    interface = run_interface_suite(device, step=args.one_step) if args.suite == "interface" else {}
     scaling = []
     if args.suite == "scaling":
         scaling = run_scaling(device, plot=args.json.with_suffix(".png") if args.json else None)
