@@ -97,7 +97,9 @@ def test_slit_at_b3_drains_like_finest_at_one_step():
     # is 10%. (At one step the 1-cell slit at b = 2 reads 0.74 and the round holes 1.08-1.25:
     # docs/method.md, "Outside our code, and the modes at one step"; not asserted, open.)
     r = run_slit(1.0, 3, 0.5, "cpu", step=0.1)
-    assert r["adaptive"]["steps"] == r["finest"]["steps"], r  # the step is the fixed one
+    # the fixed step in effect (a mode's own CFL step may dip under it for a few steps: 1,697
+    # against 1,680 with the band's ties decided one way, docs/benchmarks.md)
+    assert abs(r["steps_ratio"] - 1.0) < 0.02, r
     assert r["finest"]["through"] > 0.05, r  # the case is what it says: water goes through
     assert abs(r["through_ratio"] - 1.0) < 0.10, r
     # the coarse grid alone clogs the slit (0 at one step, 0.025 at its own)

@@ -31,15 +31,23 @@ g = np.stack(np.meshgrid(*[np.arange(a, bb, dx / 2) + dx / 4 for a, bb in ((0, W
 g += (rng.random(g.shape) - 0.5) * dx / 4
 n = len(g); vol = (dx / 2) ** 3; mass = rho * vol
 
+@wp.func
+def stencil(xp: wp.vec3, dx: float):
+    # the quadratic B-spline stencil: lowest node, offset from it in cells, weights (rows: nodes)
+    Xp = xp / dx
+    base = wp.vec3i(int(Xp[0] - 0.5), int(Xp[1] - 0.5), int(Xp[2] - 0.5))
+    fx = Xp - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+    a = wp.vec3(1.5) - fx
+    bb = fx - wp.vec3(1.0)
+    cc = fx - wp.vec3(0.5)
+    return base, fx, wp.matrix_from_rows(0.5 * wp.cw_mul(a, a), wp.vec3(0.75) - wp.cw_mul(bb, bb), 0.5 * wp.cw_mul(cc, cc))
+
+
 @wp.kernel
 def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33), J: wp.array(dtype=float),
         gv: wp.array3d(dtype=wp.vec3), gm: wp.array3d(dtype=float), dx: float, dt: float, vol: float, mass: float, K: float):
     p = wp.tid()
-    Xp = x[p] / dx
-    base = wp.vec3i(int(Xp[0] - 0.5), int(Xp[1] - 0.5), int(Xp[2] - 0.5))
-    fx = Xp - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
-    a = wp.vec3(1.5) - fx; bb = fx - wp.vec3(1.0); cc = fx - wp.vec3(0.5)
-    w = wp.matrix_from_rows(0.5 * wp.cw_mul(a, a), wp.vec3(0.75) - wp.cw_mul(bb, bb), 0.5 * wp.cw_mul(cc, cc))
+    base, fx, w = stencil(x[p], dx)
     pr = K * (1.0 / J[p] - 1.0)
     stress = -dt * 4.0 / (dx * dx) * vol * J[p] * (-pr)
     affine = wp.identity(n=3, dtype=float) * stress + mass * C[p]
@@ -79,11 +87,7 @@ def update(gv: wp.array3d(dtype=wp.vec3), gm: wp.array3d(dtype=float), dt: float
 def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33), J: wp.array(dtype=float),
         gv: wp.array3d(dtype=wp.vec3), dx: float, dt: float, pic: int, speed: wp.array(dtype=float), hi: wp.vec3):
     p = wp.tid()
-    Xp = x[p] / dx
-    base = wp.vec3i(int(Xp[0] - 0.5), int(Xp[1] - 0.5), int(Xp[2] - 0.5))
-    fx = Xp - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
-    a = wp.vec3(1.5) - fx; bb = fx - wp.vec3(1.0); cc = fx - wp.vec3(0.5)
-    w = wp.matrix_from_rows(0.5 * wp.cw_mul(a, a), wp.vec3(0.75) - wp.cw_mul(bb, bb), 0.5 * wp.cw_mul(cc, cc))
+    base, fx, w = stencil(x[p], dx)
     nv = wp.vec3(0.0); nC = wp.mat33(0.0)
     for i in range(3):
         for j in range(3):
