@@ -417,7 +417,8 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
     passages += [(f"slit 1.0 cells, b = 3, {name}", 1.0, 3, (0,), 0.0, False, 0.0, fluid) for name, fluid in FLUIDS]
     for name, w, b, seeds, tilt, hole, lift, *fluid in passages:
         r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift, fluid[0] if fluid else None, step)
-        print(f"{name}{f' (one step, cfl {step:g} at rest)' if step else ''}: mass through original {r['original']['through']:.4f}  "
+        at = f" (one step, cfl {step:g} at rest)" if step else ""
+        print(f"{name}{at}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
