@@ -94,8 +94,10 @@ def test_slit_at_b3_drains_like_finest_at_one_step():
     # mixes the level interface with the step count. Here every mode takes one fixed step
     # (cfl 0.1 at the sound speed, below every mode's own): the 1-cell slit at b = 3, 0.5 s,
     # measured 0.1566 against finest's 0.1553 (1.009) in 1,680 steps each (0.983 and 1.000 with
-    # the contact band's ties decided either way, docs/benchmarks.md); the issue's bound is 10%. (At one step the 1-cell slit at b = 2 reads 0.74 and the round holes 1.08-1.25:
-    # docs/method.md, "Outside our code, and the modes at one step"; not asserted, open.)
+    # the contact band's ties decided either way, docs/benchmarks.md); the issue's bound is 10%.
+    # (At one step the 1-cell slit at b = 2 reads 0.74 and the round holes 1.08-1.25, plates on a
+    # node plane whose band ties round-off decides: docs/method.md, "At one step, where no node
+    # sits on the band's edge, adaptive is finest"; not asserted, open.)
     r = run_slit(1.0, 3, 0.5, "cpu", step=0.1)
     # the fixed step in effect (a mode's own CFL step may dip under it for a few steps: 1,697
     # against 1,680 with the band's ties decided one way, docs/benchmarks.md)
