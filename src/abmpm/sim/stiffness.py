@@ -68,6 +68,24 @@ def gradient_length(st: Stencil, i: int, j: int, k: int):
     return 4.0 * weight_at(st, i, j, k) * wp.length(wp.vec3(float(i), float(j), float(k)) - st.fx)
 
 
+@wp.func
+def excess_nodes(g: GridSpec, st: Stencil, a: float, mass: float, excess: wp.array(dtype=float),
+                 stiff_m: wp.array(dtype=float), clear: int):
+    # the stencil's nodes: add a particle's excess a |g_ip| and its mass share (scatter_excess),
+    # or zero both where it added them (clear_excess)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                n = node_at(g, st, i, j, k)
+                if n >= 0:
+                    if clear != 0:
+                        excess[n] = 0.0
+                        stiff_m[n] = 0.0
+                    else:
+                        wp.atomic_add(excess, n, a * gradient_length(st, i, j, k))
+                        wp.atomic_add(stiff_m, n, weight_at(st, i, j, k) * mass)
+
+
 @wp.kernel
 def scatter_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff: wp.array(dtype=float),
                    excess: wp.array(dtype=float), stiff_m: wp.array(dtype=float)):
@@ -75,14 +93,7 @@ def scatter_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff
     a = excess_weight(s, p, level, stiff)
     if a == 0.0:
         return
-    st = dense_stencil(g, s.x[p])
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                n = node_at(g, st, i, j, k)
-                if n >= 0:
-                    wp.atomic_add(excess, n, a * gradient_length(st, i, j, k))
-                    wp.atomic_add(stiff_m, n, weight_at(st, i, j, k) * s.mass[p])
+    excess_nodes(g, dense_stencil(g, s.x[p]), a, s.mass[p], excess, stiff_m, 0)
 
 
 @wp.kernel
@@ -113,14 +124,7 @@ def clear_excess(first: int, s: ParticleArrays, level: int, g: GridSpec, stiff: 
     p = wp.tid() + first
     if excess_weight(s, p, level, stiff) == 0.0:
         return
-    st = dense_stencil(g, s.x[p])
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                n = node_at(g, st, i, j, k)
-                if n >= 0:
-                    excess[n] = 0.0
-                    stiff_m[n] = 0.0
+    excess_nodes(g, dense_stencil(g, s.x[p]), 0.0, 0.0, excess, stiff_m, 1)
 
 
 class StiffnessSignal:
