@@ -1,9 +1,11 @@
 """Argument types the commands share (``abmpm`` and ``abmpm bench``, which parses its
-own options): whole counts, and threads no more than this process's CPU cores."""
+own options): whole counts, finite numbers above 0, and threads no more than this
+process's CPU cores."""
 
 from __future__ import annotations
 
 import argparse
+import math
 
 from abmpm.sim.parallel import default_threads
 
@@ -17,6 +19,17 @@ def positive_int(text: str, what: str) -> int:
     if n < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
     return n
+
+
+def positive_float(text: str, what: str) -> float:
+    """An argparse type: ``what`` (e.g. "a number of seconds"), finite and above 0."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not math.isfinite(x) or x <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text}")
+    return x
 
 
 def threads_arg(text: str) -> int:

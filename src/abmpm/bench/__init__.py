@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import math
 import os
 import platform
 import subprocess
@@ -22,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ..arguments import frames_arg, threads_arg
+from ..arguments import frames_arg, positive_float, threads_arg
 from ..io.summary import write_json
 from ..scene.model import (
     BoxBody,
@@ -268,23 +267,14 @@ def run_numba(reference: Path, n: int, grid: int, threads: int) -> float | None:
 
 def _seconds(text: str) -> float:
     """--seconds: a finite number above 0."""
-    try:
-        t = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
-    if not math.isfinite(t) or t <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text}")
-    return t
+    return positive_float(text, "a number of seconds")
 
 
 def _one_step(text: str) -> float:
     """--one-step: a CFL number above 0 and at most 1."""
-    try:
-        c = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a CFL number, got {text!r}") from None
-    if not math.isfinite(c) or not 0.0 < c <= 1.0:
-        raise argparse.ArgumentTypeError(f"must lie in (0, 1], got {text}")
+    c = positive_float(text, "a CFL number")
+    if c > 1.0:
+        raise argparse.ArgumentTypeError(f"must be at most 1, got {text}")
     return c
 
 
