@@ -47,7 +47,10 @@ from .grid import (
 # and 2 cells more for the bounds of a particle's distance (node_color.py)
 NODE_BAND = 4.5
 PARTICLE_BAND = 2.6  # cells: particles this close test compatibility and crossings
-CONTACT_BAND = 1.0  # cells: nodes this close get the collider's boundary condition
+# cells: nodes this close get the collider's boundary condition. A node one cell from a
+# sheet on a node plane is in, whatever float32 round-off its distance carries (which
+# differs between grids, nodes and devices): docs/method.md, "The contact band's ties"
+CONTACT_BAND = 1.001
 FAR = 1.0e10
 NODE_RANGE = 512  # nodes worth a thread of their own when coloring (a query each)
 # cells: closer than this a point is on the surface; its direction from the closest
