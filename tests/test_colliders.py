@@ -285,3 +285,23 @@ def test_a_particle_resting_on_a_sheet_slides_along_it():
     # the backed-off ray stops it 1/3 cell along (0.02 cells of back-off over a 0.03-cell
     # drop, less STOP_GAP along the slanted path); a pinned particle moves 0
     assert 0.25 * dx < x[0] - x_old[0, 0] < 0.5 * dx, x - x_old[0]
+
+
+def test_a_sheet_on_a_node_plane_acts_the_same_a_hair_above_or_below():
+    # A sheet on a node plane has nodes exactly one cell from it on both sides, on the edge of
+    # the contact band; whether they took the contact was float32 round-off in their
+    # distance (and so differed between grids and devices). The band is 1.001 cells now
+    # (sim/colliders.py): moving the sheet 1e-4 cells up or down must not change what the
+    # water on it does. Measured: positions 3.6e-7 m apart after 0.3 s; with the band at
+    # exactly one cell, 0.16 m (the water above takes the contact at one offset and not at
+    # the other). Bound 1e-4 m = dx/400, far below any physical difference (as in test_cuda).
+    def run(y):
+        sim = make_sim([abmpm.Fluid(name="water")],
+                       [abmpm.BoxBody(material="water", min=(0.3, 0.42, 0.3), max=(0.7, 0.54, 0.7))],
+                       [sm.SheetCollider(size=(1.3, 1.3), center=(0.5, y, 0.5))], dx=0.04, fps=20)
+        sim.advance(frames=6)
+        return sim.particles().by_id()
+
+    shift = 1e-4 * 0.04  # the plane y = 0.4 is the tenth node plane of dx = 0.04
+    above, below = run(0.4 + shift), run(0.4 - shift)
+    assert np.abs(above.x - below.x).max() < 1e-4
