@@ -284,18 +284,20 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
                    grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
                    tau_store: wp.array(dtype=wp.mat33), on_fine: wp.array(dtype=wp.int32)):
         p = wp.tid() + first
-        if s.level[p] == 0 and (wider_than_a_cell(g, s.volume[p]) or s.surface_body[p] >= 0):
+        if s.level[p] == 0:
             # A level-0 particle in a collider's band whose whole footprint lies in active
             # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
             # collider is then the fine grid's, like the level-1 material it meets there
             # (docs/method.md, "Coarse particles in a collider's band move with the fine grid").
-            # At b = 2 its box is one fine cell, and a point elsewhere would do; in the band
-            # it is its box too, the kernel g2p_sparse gathers it with
-            whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
-            on_fine[p] = wp.where(whole and s.surface_body[p] >= 0, 1, 0)
-            return
-        if s.level[p] == 0:
-            on_fine[p] = 0  # it left the band since the last step
+            # It is its box here where the box is wider than a fine cell (b >= 3), and in the
+            # band at b = 2 too, where g2p_sparse gathers it with that kernel; every other
+            # level-0 particle is a point and left to the coarse grid (the mark set afresh)
+            in_band = s.surface_body[p] >= 0
+            on_fine[p] = 0
+            if in_band or wider_than_a_cell(g, s.volume[p]):
+                whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
+                on_fine[p] = wp.where(whole and in_band, 1, 0)
+                return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):
             return
