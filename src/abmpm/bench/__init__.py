@@ -299,6 +299,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
                     help="interface suite: run the plate cases in every mode at one fixed step, CFL fine cells a "
                          "step at the sound speed (0.1 keeps it below every mode's own step), so that the ratios "
                          "to finest measure the level interface apart from the number of steps")
+    ap.add_argument("--criterion", choices=["feature", "density", "both"], default=None,
+                    help="interface suite: the plate cases' adaptive runs refine by this criterion instead of "
+                         "the default (both: every sheet's band too, closer to finest at more cost)")
     ap.add_argument("--profile", action="store_true",
                     help="adaptive suite: time every kernel and phase of the step (ms per step) and how "
                          "evenly the CPU threads share each (busiest thread over the mean)")
@@ -313,6 +316,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
 
     if args.one_step is not None and args.suite != "interface":
         ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
+    if args.criterion is not None and args.suite != "interface":
+        ap.error("--criterion: only the interface suite takes it (add --suite interface)")
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
@@ -382,7 +387,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
                   + (f"lists {row['lists_ns']} ns, " if row["lists_built"] else "no lists (they would not pay), ")
                   + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
-    interface = run_interface_suite(device, step=args.one_step) if args.suite == "interface" else {}
+    interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion)
+                 if args.suite == "interface" else {})
     scaling = []
     if args.suite == "scaling":
         scaling = run_scaling(device, plot=args.json.with_suffix(".png") if args.json else None)

@@ -145,7 +145,7 @@ def one_step(scene: sm.Scene, cfl: float) -> float:
 
 def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
              tilt: float = 0.0, hole: bool = False, lift: float = 0.0, fluid: dict | None = None,
-             step: float | None = None) -> dict:
+             step: float | None = None, criterion: str | None = None) -> dict:
     """Mass through (below the plate's plane), steps and wall seconds of one slit case
     in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
     mass through in ``through_seeds``); ``tilt`` and ``lift`` as in ``plate_with_slit``; ``hole``:
@@ -153,7 +153,9 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
     the water's ``Fluid`` parameters instead of K = 2e4 Pa; ``step``: every mode at one fixed
     step (``one_step``) instead of its own CFL step. At a sheet the outcome depends on the
     number of steps in any MPM (docs/method.md, "Outcomes at a sheet depend on the step"), so
-    only at one step does the ratio to finest measure the level interface alone."""
+    only at one step does the ratio to finest measure the level interface alone. ``criterion``:
+    the adaptive run's refinement criterion instead of the default ("both" refines the
+    plate's whole band: docs/benchmarks.md, "The plate matrix over 24 cases, four ways")."""
     out = {}
     for mode in MODES:
         runs = []
@@ -164,6 +166,8 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
                 scene.materials = [sm.Fluid(name="water", **fluid)]
             if step is not None:
                 scene.simulation.max_dt = one_step(scene, step)
+            if criterion is not None:
+                scene.simulation.refinement.criterion = criterion
             sim = Simulation(scene, device=device)
             up = sim.colliders.body_meshes()[0].face_normals[0]
             up = up if up[1] > 0 else -up
@@ -403,9 +407,11 @@ def _summary(key: str, r: dict) -> str:
             f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
 
 
-def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None) -> dict:
+def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None,
+                        criterion: str | None = None) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results. ``step``: the
-    plate cases at one fixed step for every mode (``run_slit``), the other cases as always."""
+    plate cases at one fixed step for every mode, ``criterion``: their adaptive runs with
+    that refinement criterion (``run_slit``); the other cases as always."""
     results = {}
 
     def lifted(lift: float) -> str:
@@ -416,8 +422,10 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
         (f"round hole {w} cells, b = {b}" + lifted(lift), w, b, (0,), 0.0, True, lift) for w, b, lift in HOLES]
     passages += [(f"slit 1.0 cells, b = 3, {name}", 1.0, 3, (0,), 0.0, False, 0.0, fluid) for name, fluid in FLUIDS]
     for name, w, b, seeds, tilt, hole, lift, *fluid in passages:
-        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift, fluid[0] if fluid else None, step)
+        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift, fluid[0] if fluid else None, step,
+                                     criterion)
         at = f" (one step, cfl {step:g} at rest)" if step else ""
+        at += f" (criterion {criterion})" if criterion else ""
         print(f"{name}{at}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
