@@ -396,7 +396,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
     result = {
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
-        "adaptive": adaptive, "colliders": colliders, "interface": interface, "scaling": scaling,
+        "adaptive": adaptive, "colliders": colliders, "interface": interface,
+        "interface_options": {"one_step": args.one_step, "criterion": args.criterion} if interface else {},
+        "scaling": scaling,
         "reconstruction": reconstruction,
     }
     if args.json:
