@@ -17,6 +17,7 @@ import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 import warp as wp
@@ -28,6 +29,7 @@ from ..scene.model import (
     CrossedPlatesCollider,
     Elastic,
     Fluid,
+    Refinement,
     Scene,
     SheetCollider,
     SimulationSettings,
@@ -299,7 +301,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
                     help="interface suite: run the plate cases in every mode at one fixed step, CFL fine cells a "
                          "step at the sound speed (0.1 keeps it below every mode's own step), so that the ratios "
                          "to finest measure the level interface apart from the number of steps")
-    ap.add_argument("--criterion", choices=["feature", "density", "both"], default=None,
+    ap.add_argument("--criterion", choices=get_args(Refinement.model_fields["criterion"].annotation), default=None,
                     help="interface suite: the plate cases' adaptive runs refine by this criterion instead of "
                          "the default (both: every sheet's band too, closer to finest at more cost)")
     ap.add_argument("--profile", action="store_true",
