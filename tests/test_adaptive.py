@@ -104,6 +104,36 @@ def test_split_children_start_inside_the_domain_walls(b):
     assert np.allclose(interior.mean(axis=0), x[3], atol=1e-6)
 
 
+@pytest.mark.parametrize("b", [2, 3, 4])
+def test_region_blocks_lie_around_the_region(b):
+    """The fine blocks a region asks for cover its cells' fine nodes and the stencil
+    margin of 2 nodes, rounded out to whole 4-node blocks, and nothing more: on every
+    axis the first active node lies 2-5 nodes before the region's first fine node and
+    the last one 2-5 nodes after its last. Each grid's node 0 lies 3 of its own cells
+    outside the domain, so coarse cell c starts at fine node c b - 3 (b - 1), not c b:
+    with that shift left out the blocks went (b - 1) coarse cells up every axis, and
+    the level-0 particles on one side of a region moved with the fine grid, on the
+    other with the coarse one (a symmetric drop onto a slit plate gained sideways
+    momentum)."""
+    init_warp()
+    solver = MPMSolver(SolverConfig((0, 0, 0), (0.8, 0.8, 0.8), 0.1, refine_factor=b),
+                       [material_params(sm.Elastic(name="e"))], "cpu")
+    cells = np.zeros(tuple(d - 1 for d in solver.grid.dims), dtype=bool)
+    lo_cell, hi_cell = np.array([5, 6, 7]), np.array([7, 8, 9])  # inclusive, coarse cell indices
+    cells[lo_cell[0]:hi_cell[0] + 1, lo_cell[1]:hi_cell[1] + 1, lo_cell[2]:hi_cell[2] + 1] = True
+    solver.set_region(cells)
+    fine, coarse = solver.refiner.fine, solver.grid
+    blocks = np.argwhere(fine.spec.blocks.numpy() >= 0)
+    first, last = blocks.min(axis=0) * 4, blocks.max(axis=0) * 4 + 3  # active fine nodes
+    # the region's first and last fine node, from positions (not indices)
+    region_lo = coarse.origin + lo_cell * coarse.dx
+    region_hi = coarse.origin + (hi_cell + 1) * coarse.dx
+    node_lo = np.rint((region_lo - fine.origin) / fine.dx).astype(int)
+    node_hi = np.rint((region_hi - fine.origin) / fine.dx).astype(int)
+    assert np.all(node_lo - first >= 2) and np.all(node_lo - first <= 5), (first, node_lo)
+    assert np.all(last - node_hi >= 2) and np.all(last - node_hi <= 5), (last, node_hi)
+
+
 # --------------------------------------------------------------------------- modes
 
 

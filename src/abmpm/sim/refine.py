@@ -234,8 +234,14 @@ class Refiner:
         wanted = np.zeros(self.wanted.shape, dtype=np.int32)
         idx = np.argwhere(self.region_cells)
         if len(idx):
-            lo = np.maximum(idx * self.b - 2, 0) // BLOCK
-            hi = np.minimum((idx + 1) * self.b + 2, np.array(self.fine.dims) - 1) // BLOCK
+            # coarse cell c spans fine nodes c b + shift ... (c + 1) b + shift: each grid's
+            # node 0 lies GRID_PAD of its own cells outside the domain, so the fine grid's
+            # starts (b - 1) GRID_PAD fine nodes nearer it (until 2026-11-28 the shift was
+            # left out, and the blocks went to the region moved (b - 1) coarse cells up
+            # every axis: docs/method.md, "The region's blocks were misplaced")
+            shift = np.rint((self.coarse.origin - self.fine.origin) / self.fine.dx).astype(int)
+            lo = np.maximum(idx * self.b + shift - 2, 0) // BLOCK
+            hi = np.minimum((idx + 1) * self.b + shift + 2, np.array(self.fine.dims) - 1) // BLOCK
             for a, bb in zip(lo, hi):
                 wanted[a[0]:bb[0] + 1, a[1]:bb[1] + 1, a[2]:bb[2] + 1] = 1
         self.wanted.assign(wanted)
