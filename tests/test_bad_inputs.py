@@ -359,6 +359,11 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "mesh_without_faces": (mesh_body("points.obj"), ("points.obj", "bodies[2].file")),
     "toml_syntax_error": (sub("[simulation.walls]", "[simulation.walls"), ("TOML syntax error",)),
     "scene_not_utf8": (GOOD.replace('name = "tiny"', 'name = "caf\udce9"'), ("not UTF-8",)),
+    # the name is the default output folder: never a path out of out/ (a run clears frames there)
+    "name_climbs_out": (sub('name = "tiny"', 'name = "../../elsewhere"'), ("name:", "plain folder name")),
+    "name_absolute": (sub('name = "tiny"', 'name = "/tmp/elsewhere"'), ("name:", "plain folder name")),
+    "name_empty": (sub('name = "tiny"', 'name = ""'), ("name:", "plain folder name")),
+    "name_dot": (sub('name = "tiny"', 'name = "."'), ("name:", "plain folder name")),
 }
 
 MESH_CASE_FILES = {"folder.obj": None}  # None: a directory
@@ -507,6 +512,7 @@ ARG_CASES = {
     "no_scene": (["run"], "SCENE"),
     "frames_zero": (["run", "scene.toml", "--frames", "0"], "--frames"),
     "frames_not_a_number": (["run", "scene.toml", "--frames", "ten"], "--frames"),
+    "frames_beyond_any_run": (["run", "scene.toml", "--frames", "10000000000000"], "--frames"),
     "unknown_option": (["run", "scene.toml", "--bogus"], "--bogus"),
     "unknown_command": (["simulate", "scene.toml"], "simulate"),
     "bad_mode": (["run", "scene.toml", "--mode", "fine"], "--mode"),
@@ -606,6 +612,19 @@ def _leftover(folder: Path, name: str) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=folder)
     os.close(fd)
     return Path(tmp)
+
+
+def test_a_folder_no_run_wrote_is_not_cleared(in_tmp, capsys):
+    """--out naming a folder with files of abmpm's names but no scene.json (not a run's):
+    refused before anything is removed."""
+    write_scene(in_tmp, GOOD)
+    frames = in_tmp / "out" / "frames"
+    frames.mkdir(parents=True)
+    (frames / "frame_00099.ply").write_text("someone else's")
+    (in_tmp / "out" / "summary.json").write_text("{}")
+    code, err, caught = run_cli(RUN, capsys)
+    assert_one_line_error(code, err, caught, "not an abmpm run folder", "frames/frame_00099.ply")
+    assert (frames / "frame_00099.ply").read_text() == "someone else's"
 
 
 def test_interrupted_writes_are_cleaned_on_the_next_run(in_tmp, capsys):

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shlex
+import signal
 
 import numpy as np
 import pytest
@@ -223,7 +225,10 @@ max = [0.15, 0.2, 0.4]
     assert json.loads((out / "summary.json").read_text())["status"] == "blew_up"
 
 
-def test_interrupt_checkpoints_last_frame_and_resumes(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("how", ["ctrl_c", "sigterm"])
+def test_interrupt_checkpoints_last_frame_and_resumes(how, tmp_path, monkeypatch, capsys):
+    """Ctrl-C, or a SIGTERM (a job scheduler, `timeout`), mid-frame: the last whole frame
+    is checkpointed, the summary says "interrupted", and the printed command resumes."""
     original = Simulation.advance
 
     def advance(self, seconds=None, frames=None, callback=None):
@@ -231,7 +236,11 @@ def test_interrupt_checkpoints_last_frame_and_resumes(tmp_path, monkeypatch, cap
             callback(sim)
             if sim.frame == 2:
                 sim.step()  # mid-frame, as a Ctrl-C usually is
-                raise KeyboardInterrupt
+                if how == "ctrl_c":
+                    raise KeyboardInterrupt
+                assert callable(signal.getsignal(signal.SIGTERM))  # else the signal would end pytest
+                os.kill(os.getpid(), signal.SIGTERM)  # the CLI's handler raises KeyboardInterrupt here
+                raise AssertionError("SIGTERM did not interrupt the run")
 
         return original(self, seconds=seconds, frames=frames, callback=interrupted)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from abmpm.scene.checks import MAX_FRAMES
 from abmpm.sim.parallel import default_threads
 
 
@@ -43,5 +44,8 @@ def threads_arg(text: str) -> int:
 
 
 def frames_arg(text: str) -> int:
-    """--frames N"""
-    return positive_int(text, "frames")
+    """--frames N, at most the MAX_FRAMES a scene's duration * fps may ask for"""
+    n = positive_int(text, "frames")
+    if n > MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"{n} frames: more than {MAX_FRAMES:.0e}")
+    return n

@@ -27,7 +27,9 @@ import importlib.util
 import os
 import platform
 import shlex
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -368,6 +370,11 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code) if isinstance(exc.code, int) else EXIT_ERROR
     init_warp_silently()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        # a SIGTERM (a job scheduler, `timeout`, `kill`) ends a run as Ctrl-C does: its
+        # summary says "interrupted" and how to resume
+        previous = signal.signal(signal.SIGTERM, _terminated)
     try:
         if not getattr(args, "threads", None):
             check_threads_env()  # ABMPM_THREADS, read by every run that is not given --threads
@@ -384,6 +391,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminated(signum, frame):
+    raise KeyboardInterrupt
 
 
 if __name__ == "__main__":

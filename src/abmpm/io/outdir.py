@@ -140,6 +140,12 @@ def clean_previous_run(out: Path) -> None:
     victims += [p for _, p in numbered(out / SURFACES_DIR, SURFACE_RE)]
     victims += [out / n for n in (SUMMARY_FILE, ENERGY_FILE, PREVIEW_FILE, POSTER_FILE, USD_FILE, REGION_FILE,
                                 BEAUTY_FILE, BEAUTY_POSTER_FILE)]
+    found = [p for p in victims if p.exists()]
+    if found and not (out / SCENE_FILE).is_file():
+        # files with abmpm's names in a folder no abmpm run wrote (it would hold scene.json)
+        names = ", ".join(str(p.relative_to(out)) for p in found[:3]) + (" ..." if len(found) > 3 else "")
+        raise OutputError(f"output folder {out} is not an abmpm run folder (no {SCENE_FILE}) but holds files a run "
+                          f"would replace ({names}); choose another --out, or move those files away")
     for p in victims:
         try:
             p.unlink(missing_ok=True)

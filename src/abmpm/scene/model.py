@@ -9,6 +9,7 @@ paths get the same defaults and the same error messages. Units are SI throughout
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
@@ -326,8 +327,13 @@ def with_mode(scene: "Scene", mode: str, **refinement_settings) -> "Scene":
     return scene.model_copy(update={"simulation": st.model_copy(update={"refinement": refinement})})
 
 
+# a scene's name is its default output folder (out/<name>/), so it is one plain folder name
+SCENE_NAME = re.compile(r"[^./\\\x00\s][^/\\\x00]*")
+
+
 class Scene(_Strict):
-    name: str = "scene"
+    name: str = Field("scene", description="the default output folder is out/<name>/: one folder name, with no / "
+                                           "or \\, not starting with a dot or a space")
     description: str = Field("", description="one line shown by `abmpm scenes`")
     simulation: SimulationSettings = SimulationSettings()
     materials: Annotated[list[Material], Strict(False)] = Field(min_length=1)
@@ -336,6 +342,14 @@ class Scene(_Strict):
     output: Output = Output()
     # Folder that relative paths (mesh files) resolve against; set by the TOML loader.
     base_dir: FilePath | None = Field(None, exclude=True)
+
+    @field_validator("name")
+    @classmethod
+    def _folder_name(cls, name: str) -> str:
+        if not SCENE_NAME.fullmatch(name):
+            raise ValueError(f"{name!r} is not a plain folder name (it names the output folder out/<name>/): "
+                             "no / or \\, not empty, not starting with a dot or a space")
+        return name
 
     @model_validator(mode="after")
     def _references(self):
