@@ -377,6 +377,19 @@ def test_feature_slit_between_two_plates_refined_plates_not():
             assert np.abs(c[:, 1] - 0.5).max() < 2.5 * DX
 
 
+def test_feature_of_a_finely_meshed_slit_is_the_coarse_meshes():
+    """Plates meshed 50k triangles each mark the cells two triangles each do: the samples
+    are thinned to the criterion's own spacing before widths are measured (without that a
+    sheet of a million triangles paired every sample with thousands and filled the
+    memory)."""
+    slit, half = 0.75 * DX, (1.0 - 0.75 * DX) / 2
+    centres = ((half / 2, 0.5, 0.5), (1 - half / 2, 0.5, 0.5))
+    coarse = [C.sheet(size=(half, 1.0), center=c) for c in centres]
+    fine = [C.sheet(size=(half, 1.0), center=c, resolution=(160, 160)) for c in centres]
+    assert len(fine[0].faces) > 50_000
+    np.testing.assert_array_equal(feature(fine), feature(coarse))
+
+
 def test_feature_wide_gap_not_refined_narrow_parallel_gap_refined():
     g = 10 * DX
     half = (1.0 - g) / 2
