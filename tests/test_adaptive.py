@@ -111,7 +111,7 @@ def test_region_blocks_lie_around_the_region(b):
     axis the first active node lies 2-5 nodes before the region's first fine node and
     the last one 2-5 nodes after its last. Each grid's node 0 lies 3 of its own cells
     outside the domain, so coarse cell c starts at fine node c b - 3 (b - 1), not c b:
-    with that shift left out the blocks went (b - 1) coarse cells up every axis, and
+    with that shift left out the blocks went 3 (b - 1) fine nodes up every axis, and
     the level-0 particles on one side of a region moved with the fine grid, on the
     other with the coarse one (a symmetric drop onto a slit plate gained sideways
     momentum)."""

@@ -179,7 +179,7 @@ def test_a_symmetric_drop_gains_no_sideways_momentum():
     """Water falling onto a plate with a slit down its middle: the scene is its own mirror
     image in x, so the water's net x momentum stays at what the particles' jitter and the
     fine blocks' alignment leave (finest: 0 to float32 round-off). While the region's blocks
-    sat (b - 1) coarse cells off it (before 2026-11-28), the level-0 water on one side of
+    sat 3 (b - 1) fine nodes off it (before 2026-11-28), the level-0 water on one side of
     the region moved with the fine grid and on the other with the coarse one: x momentum
     0.10 of the vertical by 0.076 s; with them in place 0.020 (1 and 2 threads), bound
     0.035 (the blocks' 4-node alignment is not symmetric about the slit: docs/method.md)."""

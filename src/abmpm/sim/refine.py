@@ -237,8 +237,8 @@ class Refiner:
             # coarse cell c spans fine nodes c b + shift ... (c + 1) b + shift: each grid's
             # node 0 lies GRID_PAD of its own cells outside the domain, so the fine grid's
             # starts (b - 1) GRID_PAD fine nodes nearer it (until 2026-11-28 the shift was
-            # left out, and the blocks went to the region moved (b - 1) coarse cells up
-            # every axis: docs/method.md, "The region's blocks were misplaced")
+            # left out, and the blocks went to the region moved 3 (b - 1) fine nodes, 1.5-2.25
+            # coarse cells, up every axis: docs/method.md, "The region's blocks were misplaced")
             shift = np.rint((self.coarse.origin - self.fine.origin) / self.fine.dx).astype(int)
             lo = np.maximum(idx * self.b + shift - 2, 0) // BLOCK
             hi = np.minimum((idx + 1) * self.b + shift + 2, np.array(self.fine.dims) - 1) // BLOCK
