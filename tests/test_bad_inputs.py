@@ -364,6 +364,7 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "name_absolute": (sub('name = "tiny"', 'name = "/tmp/elsewhere"'), ("name:", "plain folder name")),
     "name_empty": (sub('name = "tiny"', 'name = ""'), ("name:", "plain folder name")),
     "name_dot": (sub('name = "tiny"', 'name = "."'), ("name:", "plain folder name")),
+    "device_unknown": (sub("seed = 0\n", 'seed = 0\ndevice = "tpu"\n'), ("simulation.device", "tpu")),
 }
 
 MESH_CASE_FILES = {"folder.obj": None}  # None: a directory

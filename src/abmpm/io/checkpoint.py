@@ -54,7 +54,11 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dic
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise OutputError(f"cannot read checkpoint {path}: {exc}") from exc
+        why = "not a checkpoint's arrays" if isinstance(exc, ValueError) else "truncated, or not an .npz archive"
+        if isinstance(exc, OSError) and not path.is_file():
+            why = exc.strerror or str(exc)
+        raise OutputError(f"cannot read checkpoint {path}: {why}; remove it to resume from the checkpoint "
+                          f"before it, or run again without --resume") from exc
     meta_arr = arrays.pop(_META_KEY, None)
     meta = json.loads(str(meta_arr[()])) if meta_arr is not None else {}
     return arrays, meta

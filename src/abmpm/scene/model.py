@@ -144,6 +144,14 @@ class SimulationSettings(_Strict):
         False, description="replay the substeps between host points as captured CUDA graphs (CUDA only; experimental)"
     )
 
+    @field_validator("device")
+    @classmethod
+    def _device_name(cls, device: str | None) -> str | None:
+        # whether this machine has it is known only when the run starts (runtime.py)
+        if device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", device):
+            raise ValueError(f"unknown device {device!r} (use 'cpu', 'cuda' or 'cuda:N')")
+        return device
+
     @model_validator(mode="after")
     def _domain_is_a_box(self):
         for axis in range(3):
