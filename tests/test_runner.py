@@ -419,6 +419,16 @@ def test_particles_inside_a_closed_collider_are_noted(tmp_path):
     assert "notes" not in quiet_run(tiny_scene(), tmp_path / "clear", frames=1, preview=False)
 
 
+def test_a_collider_that_can_touch_nothing_is_noted(tmp_path):
+    # a static sheet wholly outside the domain (a typo in its center or units) does nothing;
+    # the run says so
+    from abmpm.scene import model as sm
+
+    scene = tiny_scene().model_copy(update={"colliders": [sm.SheetCollider(size=(0.3, 0.3), center=(5.0, 5.0, 5.0))]})
+    summary = quiet_run(scene, tmp_path / "out", frames=1, preview=False)
+    assert any("colliders[0]" in n and "outside the domain" in n for n in summary["notes"])
+
+
 def _thin_box_through_the_water():
     from abmpm.scene import model as sm
 

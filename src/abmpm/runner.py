@@ -96,6 +96,7 @@ def run(
     if not resume:
         _check_initial_state(scene, sim)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
+    notes += _idle_colliders(scene)
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
@@ -204,6 +205,21 @@ def _trapped(scene: Scene, sim) -> list[str]:
         if n:
             notes.append(f"colliders[{i}]: {n} of the {len(x)} particles start inside this closed collider and stay "
                          "trapped there (no particle crosses a collider); move the bodies or the collider")
+    return notes
+
+
+def _idle_colliders(scene: Scene) -> list[str]:
+    """A note for each collider that can touch nothing: no area, or (static) wholly
+    outside the domain. Likely a typo in its size, center or units."""
+    notes = []
+    lo, hi = np.asarray(scene.simulation.domain_min), np.asarray(scene.simulation.domain_max)
+    for i, c in enumerate(scene.colliders):
+        mesh = collider_mesh(c, scene.resolve, f"colliders[{i}]")
+        if not mesh.area > 0.0:
+            notes.append(f"colliders[{i}]: its mesh has no area, so it touches nothing")
+        elif c.motion.is_static and (np.any(mesh.bounds[0] > hi) or np.any(mesh.bounds[1] < lo)):
+            notes.append(f"colliders[{i}]: it lies wholly outside the domain ({np.round(mesh.bounds[0], 4).tolist()} "
+                         f"to {np.round(mesh.bounds[1], 4).tolist()}), so it touches nothing; check its center and size")
     return notes
 
 
