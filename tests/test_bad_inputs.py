@@ -309,6 +309,11 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
                            ("bodies[0].velocity", "time steps")),
     "huge_angular_velocity": (sub("angular_velocity = [0.0, 0.0, 0.0]", "angular_velocity = [0.0, 1e38, 0.0]"),
                               ("bodies[0].angular_velocity", "time steps")),
+    # 1e6 m/s: steppable within the frame limit, but its first step is under the fraction
+    # of the step at rest where a run stops as blown up: refused before the run
+    "body_velocity_beyond_the_blow_up_limit": (
+        sub("velocity = [0.0, 0.0, 0.0]\nangular", "velocity = [1e6, 0.0, 0.0]\nangular"),
+        ("bodies[0].velocity", "step at rest")),
     "huge_bulk_modulus": (sub("bulk_modulus = 2.0e5", "bulk_modulus = 3e38"),
                           ("materials[0].bulk_modulus", "wave speed")),
     "tiny_density": (sub("density = 1000.0", "density = 1e-30"), ("materials[0].density", "wave speed")),

@@ -24,6 +24,9 @@ _warp_ready = False
 # at nu dt / dx^2 = 0.2 and 0.4 and blew up at 0.6, 0.8 and 1.2, so half the last stable
 # measured value is kept (docs/method.md, "Time step").
 VISCOUS_CFL = 0.2
+# A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the
+# fastest particle moves ~1000x the material's wave speed.
+MIN_DT_FRACTION = 1.0e-3
 
 
 def cfl_time_step(cfl: float, max_dt: float, dx: float, signal_speed: float, viscosity: float = 0.0) -> float:

@@ -19,7 +19,7 @@ from .errors import AbmpmError, SimulationBlowUp
 from .geometry.region import refinement_region
 from .inputs import (material_rows, max_kinematic_viscosity, max_wave_speed, region_params, rigid_bodies, sample_scene,
                      solver_config)
-from .runtime import cfl_time_step, choose_device, init_warp  # noqa: F401 (init_warp: part of the API)
+from .runtime import MIN_DT_FRACTION, cfl_time_step, choose_device, init_warp  # noqa: F401 (init_warp: part of the API)
 from .scene.model import Scene
 from .sim.collider_set import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
@@ -31,9 +31,6 @@ from .sim.stiffness import SLACK as STIFFENING_SLACK
 from .sim.time_levels import SLOW_STEP_COST, cut_for_levels
 
 SORT_EVERY_FRAMES = 1  # particles are re-sorted by cell this often (memory coherence)
-# A CFL step below this fraction of the step at rest (speed 0) is a blow-up: the
-# fastest particle moves ~1000x the material's wave speed.
-MIN_DT_FRACTION = 1.0e-3
 # particle fields renamed since earlier checkpoints were written
 LEGACY_FIELDS = {"plastic": "history", "cp": "surface_point", "cn": "surface_side", "cbody": "surface_body"}
 

@@ -24,7 +24,7 @@ import warp as wp
 
 from abmpm.errors import AbmpmError, SceneError
 from abmpm.geometry.sampling import shape_bounds_and_inside
-from abmpm.runtime import cfl_time_step, choose_device
+from abmpm.runtime import MIN_DT_FRACTION, cfl_time_step, choose_device
 from abmpm.sim.materials import kinematic_viscosity, wave_speed
 
 __all__ = ["memory_estimate", "available_memory", "check_feasible", "GRID_NODE_BYTES", "PARTICLE_BYTES"]
@@ -234,6 +234,13 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
     except (ZeroDivisionError, OverflowError):
         dt, steps = 0.0, math.inf
     if dt > 0.0 and math.isfinite(steps) and steps <= MAX_STEPS_PER_FRAME:
+        rest = cfl_time_step(st.cfl, st.max_dt, dx, c, nu)
+        if dt < MIN_DT_FRACTION * rest:  # the run would stop at its first step as a blow-up
+            raise SceneError(
+                f"bodies[{i}].{vkey}: a start at {v:.3g} m/s needs a first time step of {dt:.3g} s, under "
+                f"{MIN_DT_FRACTION:g} of the step at rest ({rest:.3g} s), where a run stops as blown up; "
+                "lower the speed"
+            )
         return
     per_frame = f"a frame (1/fps = {frame_dt:.3g} s) would need {steps:.3g} time steps of {dt:.3g} s"
     limit = f"more than the {MAX_STEPS_PER_FRAME:.0e} allowed"
