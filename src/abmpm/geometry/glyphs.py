@@ -16,6 +16,7 @@ import trimesh
 from matplotlib.font_manager import FontProperties
 from matplotlib.path import Path
 from matplotlib.textpath import TextPath
+from scipy.spatial import cKDTree
 from shapely import affinity
 from shapely.geometry import Polygon, box
 from shapely.geometry.polygon import orient
@@ -224,33 +225,34 @@ def _split_t_junctions(v, faces, rel=1e-9):
     scale = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
     tol = rel * scale
     faces = faces.copy()
+    tree = cKDTree(v)  # the vertices that can lie on an edge: within its half-length of its middle
     for _ in range(len(v) + 10):
         tail, head = halfedges(faces)  # half-edge 3 f + k: edge k of face f
         once = _boundary_halfedges(faces)
-        split = {}  # face -> (its edge to split, the vertex on it)
-        for chunk in range(0, len(once), 256):
-            idx = once[chunk : chunk + 256]
-            a, b = v[tail[idx]], v[head[idx]]
-            ab = b - a
-            length2 = np.einsum("ij,ij->i", ab, ab)
-            rel_pos = v[None, :, :] - a[:, None, :]
-            t = np.einsum("kij,kj->ki", rel_pos, ab) / length2[:, None]
-            dist = np.abs(rel_pos[:, :, 0] * ab[:, None, 1] - rel_pos[:, :, 1] * ab[:, None, 0]) / np.sqrt(length2)[:, None]
-            length = np.sqrt(length2)[:, None]
-            hit = (dist <= tol) & (t * length > tol) & ((1.0 - t) * length > tol)
-            for row in np.nonzero(hit.any(axis=1))[0]:
-                f, k = divmod(int(idx[row]), 3)
-                if f in split:
-                    continue
-                cand = np.nonzero(hit[row])[0]
-                split[f] = (k, cand[np.argmin(t[row, cand])])
+        a, b = v[tail[once]], v[head[once]]
+        ab = b - a
+        length = np.sqrt(np.einsum("ij,ij->i", ab, ab))
+        near = tree.query_ball_point(0.5 * (a + b), 0.5 * length + 2.0 * tol)
+        rows = np.repeat(np.arange(len(once)), [len(c) for c in near])
+        cand = np.concatenate([np.sort(c) for c in near]).astype(np.int64) if len(rows) else rows
+        rel_pos = v[cand] - a[rows]
+        t = np.einsum("ij,ij->i", rel_pos, ab[rows]) / length[rows] ** 2
+        dist = np.abs(rel_pos[:, 0] * ab[rows, 1] - rel_pos[:, 1] * ab[rows, 0]) / length[rows]
+        hit = (dist <= tol) & (t * length[rows] > tol) & ((1.0 - t) * length[rows] > tol)
+        split = {}  # face -> (its edge to split, the vertex on it): the hanging vertex nearest a
+        for row in np.unique(rows[hit]):
+            f, k = divmod(int(once[row]), 3)
+            if f in split:
+                continue
+            mine = hit & (rows == row)
+            split[f] = (k, cand[mine][np.argmin(t[mine])])
         if not split:
             return faces
         new = []
         for f, (k, m) in split.items():
-            a, b, c = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
-            faces[f] = (a, m, c)
-            new.append((m, b, c))
+            a_, b_, c_ = faces[f, k], faces[f, (k + 1) % 3], faces[f, (k + 2) % 3]
+            faces[f] = (a_, m, c_)
+            new.append((m, b_, c_))
         faces = np.concatenate([faces, np.asarray(new, dtype=faces.dtype)])
     raise RuntimeError("letter panel triangulation: T-junction repair did not converge")
 
