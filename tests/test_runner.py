@@ -429,6 +429,20 @@ def test_a_collider_that_can_touch_nothing_is_noted(tmp_path):
     assert any("colliders[0]" in n and "outside the domain" in n for n in summary["notes"])
 
 
+def test_a_slow_start_is_noted():
+    # a nearly incompressible jelly (Poisson ratio 0.49999999): its wave speed, ~13 km/s
+    # here, makes each frame ~21,000 steps where this scene takes ~30 (the check is the
+    # scene's alone: nothing runs)
+    from abmpm.scene.checks import slow_start_note
+
+    scene = tiny_scene()
+    assert slow_start_note(scene) is None
+    stiff = scene.model_copy(update={"materials": [Fluid(name="water"),
+                                                   Elastic(name="jelly", youngs_modulus=1.0e4, poisson_ratio=0.49999999)]})
+    note = slow_start_note(stiff)
+    assert note is not None and note.startswith("materials[1]") and "slow" in note
+
+
 def _thin_box_through_the_water():
     from abmpm.scene import model as sm
 

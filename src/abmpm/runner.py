@@ -43,6 +43,7 @@ from abmpm.io.summary import write_json
 from abmpm.io.writers import FrameData, RunContext, Writer, build_writers
 from abmpm.io.writers.summary import make_summary
 from abmpm.post.preview import render_folder
+from abmpm.scene.checks import slow_start_note
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
 from abmpm.simulation import Simulation, can_refine
@@ -96,7 +97,7 @@ def run(
     if not resume:
         _check_initial_state(scene, sim)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
-    notes += _idle_colliders(scene)
+    notes += _idle_colliders(scene) + [n for n in (slow_start_note(scene, sim.mode),) if n]
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")

@@ -44,6 +44,8 @@ MAX_INDEX = 2**31 - 1
 # is a mistake (an absurd fps or duration, a stiffness or speed off by many orders).
 MAX_FRAMES = 1e9
 MAX_STEPS_PER_FRAME = 1e8
+# typical scenes take 50-500 steps a frame; this many makes a run slow enough to say so
+SLOW_STEPS_PER_FRAME = 1e4
 
 
 def _gb(n: float) -> str:
@@ -201,9 +203,9 @@ def _material_key(material) -> str:
     return "bulk_modulus" if material.model == "fluid" else "youngs_modulus"
 
 
-def check_time_stepping(scene, mode: str | None = None) -> None:
-    """SceneError if the run cannot be time-stepped: an infinite or absurd number of
-    frames, or a first time step that is zero or needs more than 1e8 steps per frame."""
+def _first_step(scene, mode: str | None):
+    """The run's first time step from the scene alone: its length, the steps a frame
+    takes at it, and what sets it (SceneError where duration * fps is absurd)."""
     st = scene.simulation
     frames = st.duration * st.fps
     if not math.isfinite(frames) or frames > MAX_FRAMES:
@@ -233,6 +235,29 @@ def check_time_stepping(scene, mode: str | None = None) -> None:
         steps = frame_dt / dt
     except (ZeroDivisionError, OverflowError):
         dt, steps = 0.0, math.inf
+    return dict(dt=dt, steps=steps, frame_dt=frame_dt, dx=dx, c=c, k=k, material=material, v=v, i=i, vkey=vkey,
+                nu=nu, kv=kv)
+
+
+def slow_start_note(scene, mode: str | None = None) -> str | None:
+    """A note when the first time step makes every frame cost more than SLOW_STEPS_PER_FRAME
+    steps (a nearly incompressible solid, a very stiff fluid): the run will be slow."""
+    f, st = _first_step(scene, mode), scene.simulation
+    if not (f["steps"] > SLOW_STEPS_PER_FRAME and math.isfinite(f["c"])) or f["v"] > f["c"]:
+        return None
+    if f["dt"] != cfl_time_step(st.cfl, st.max_dt, f["dx"], f["c"] + f["v"]):
+        return None  # viscosity sets the step, not the wave speed
+    return (f"materials[{f['k']}]: its wave speed of {f['c']:.3g} m/s sets a time step of {f['dt']:.2g} s, "
+            f"{f['steps']:.3g} steps a frame: the run will be slow (a Poisson ratio near 0.5 or a very stiff "
+            f"material; lower {_material_key(f['material'])} or raise simulation.dx if that is not wanted)")
+
+
+def check_time_stepping(scene, mode: str | None = None) -> None:
+    """SceneError if the run cannot be time-stepped: an infinite or absurd number of
+    frames, or a first time step that is zero or needs more than 1e8 steps per frame."""
+    f = _first_step(scene, mode)
+    st, dt, steps, frame_dt, dx = scene.simulation, f["dt"], f["steps"], f["frame_dt"], f["dx"]
+    c, k, material, v, i, vkey, nu, kv = (f[n] for n in ("c", "k", "material", "v", "i", "vkey", "nu", "kv"))
     if dt > 0.0 and math.isfinite(steps) and steps <= MAX_STEPS_PER_FRAME:
         rest = cfl_time_step(st.cfl, st.max_dt, dx, c, nu)
         if dt < MIN_DT_FRACTION * rest:  # the run would stop at its first step as a blow-up
