@@ -167,9 +167,10 @@ def test_folder_names_are_short_unique_and_safe():
         "materials.0.density=900.0,materials.1.density=1200.0",
     ]
     # values that differ only in case or in unsafe characters still get folders of their own
-    plan = plan_sweep(TINY, {"name": ["A", "a", "b/c", "b:c"]})
+    # (a free-text key: a scene's name may not hold a / since it names a folder itself)
+    plan = plan_sweep(TINY, {"description": ["A", "a", "b/c", "b:c"]})
     names = [n for n, _ in plan.runs]
-    assert names == ["name=A", "name=a~2", "name=b_c", "name=b_c~2"]
+    assert names == ["description=A", "description=a~2", "description=b_c", "description=b_c~2"]
 
 
 def test_without_ray_the_ray_option_says_how_to_install(tmp_path, monkeypatch, capsys):
