@@ -8,6 +8,7 @@ import pytest
 
 from abmpm.bench.interface import (
     SEEDS4,
+    _plate_tally,
     plate_with_slit,
     run_dam_break,
     run_layered_tank,
@@ -189,3 +190,12 @@ def test_a_symmetric_drop_gains_no_sideways_momentum():
     p = sim.particles()
     px, py = (float((p.mass.astype(np.float64) * p.v[:, k]).sum()) for k in (0, 1))
     assert abs(px) < 0.035 * abs(py), (px, py)
+
+
+def test_the_plate_tally_counts_issue_26s_goals():
+    # the interface suite's summary line: 10% on the mass through (both ways), 1.05x steps
+    rows = [{"through_ratio": 1.099, "steps_ratio": 1.05}, {"through_ratio": 0.899, "steps_ratio": 0.8},
+            {"through_ratio": 1.2, "steps_ratio": 1.06}, {"through_ratio": None, "steps_ratio": None}]
+    t = _plate_tally(rows)
+    assert (t["cases"], t["within_10pct"], t["steps_within_5pct"]) == (4, 1, 2)
+    assert t["mean_log_ratio"] == pytest.approx((np.log(1.099) + np.log(0.899) + np.log(1.2)) / 3, abs=1e-4)

@@ -407,6 +407,16 @@ def _summary(key: str, r: dict) -> str:
             f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
 
 
+def _plate_tally(rows: list[dict]) -> dict:
+    """The plate cases against issue 26's goals: mass through within 10% of finest's, steps at
+    most 1.05x finest's, and the mean (signed and absolute) log ratio of the mass through."""
+    logs = [float(np.log(r["through_ratio"])) for r in rows if r["through_ratio"]]
+    return {"cases": len(rows), "within_10pct": int(sum(abs(np.exp(x) - 1.0) <= 0.1 for x in logs)),
+            "steps_within_5pct": int(sum(r["steps_ratio"] is not None and r["steps_ratio"] <= 1.05 for r in rows)),
+            "mean_log_ratio": round(float(np.mean(logs)), 4) if logs else None,
+            "mean_abs_log_ratio": round(float(np.mean(np.abs(logs))), 4) if logs else None}
+
+
 def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None,
                         criterion: str | None = None) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results. ``step``: the
@@ -431,6 +441,10 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
               flush=True)
+    results["plate cases"] = plates = _plate_tally([results[p[0]] for p in passages])
+    print(f"plate cases: {plates['within_10pct']} of {plates['cases']} within 10% of finest's mass through (mean log "
+          f"ratio {plates['mean_log_ratio']:+.3f}, mean abs {plates['mean_abs_log_ratio']:.3f}), "
+          f"{plates['steps_within_5pct']} within 1.05x its steps", flush=True)
     for key, title, run, span, factors in (
             ("tank at rest", "tank at rest, interface through the water", run_tank, 0.3, TANK_FACTORS),
             ("jelly pressed through", "jelly pressed through the 1.5-cell slit by a piston", run_piston, 0.3, (3,)),
