@@ -443,6 +443,18 @@ def test_a_slow_start_is_noted():
     assert note is not None and note.startswith("materials[1]") and "slow" in note
 
 
+def test_keep_checkpoints_keeps_the_newest(tmp_path):
+    # output.keep_checkpoints = 2 with a checkpoint every frame: the newest two remain, and
+    # the run resumes from the newest
+    scene = tiny_scene(checkpoint_every=1, keep_checkpoints=2)
+    out = tmp_path / "out"
+    quiet_run(scene, out, frames=4, preview=False)
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["checkpoint_00003.npz", "checkpoint_00004.npz"]
+    summary = quiet_run(scene, out, frames=5, preview=False, resume=True)
+    assert summary["resumed_from_frame"] == 4
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["checkpoint_00004.npz", "checkpoint_00005.npz"]
+
+
 def _thin_box_through_the_water():
     from abmpm.scene import model as sm
 

@@ -22,6 +22,7 @@ __all__ = [
     "BEAUTY_POSTER_FILE",
     "BLEND_FILE",
     "CHECKPOINTS_DIR",
+    "CHECKPOINT_RE",
     "COLLIDERS_DIR",
     "ENERGY_FILE",
     "FRAMES_DIR",

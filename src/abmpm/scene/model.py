@@ -317,6 +317,10 @@ class Output(_Strict):
         "auto", description="auto: by level in adaptive mode (blue original, white subdivided), else by material"
     )
     checkpoint_every: int = Field(10, ge=1, description="write a checkpoint every N frames")
+    keep_checkpoints: int | None = Field(
+        None, ge=1, description="keep only the newest N checkpoints, removing older ones as new ones are written "
+        "(default: keep all; --resume needs only the newest)"
+    )
     usd: bool = False
     surface: bool = Field(False, description="write surfaces/surface_NNNNN_<material>.ply (needs pysplashsurf)")
     surface_mesh: SurfaceMeshOptions = SurfaceMeshOptions()

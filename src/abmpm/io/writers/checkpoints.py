@@ -8,7 +8,7 @@ import contextlib
 
 from abmpm.errors import AbmpmError
 from abmpm.io.checkpoint import save_checkpoint
-from abmpm.io.outdir import checkpoint_path
+from abmpm.io.outdir import CHECKPOINT_RE, CHECKPOINTS_DIR, checkpoint_path, numbered
 from abmpm.io.writers.base import FrameData, RunContext, Writer
 
 
@@ -18,6 +18,7 @@ class CheckpointWriter(Writer):
     def begin(self, run: RunContext) -> None:
         self.run = run
         self.every = run.scene.output.checkpoint_every
+        self.keep = run.scene.output.keep_checkpoints
         self.saved = run.resumed_from  # frame of the newest checkpoint on disk
 
     def write_frame(self, frame: int, data: FrameData) -> None:
@@ -31,6 +32,11 @@ class CheckpointWriter(Writer):
             return  # already on disk (and bit-exact, taken after the particle sort)
         save_checkpoint(checkpoint_path(self.run.out, meta["frame"]), arrays, meta)
         self.saved = meta["frame"]
+        if self.keep is not None:  # output.keep_checkpoints: the oldest go once the new one is on disk
+            old = [p for n, p in numbered(self.run.out / CHECKPOINTS_DIR, CHECKPOINT_RE) if n != self.saved]
+            for p in old[: max(0, len(old) + 1 - self.keep)]:
+                with contextlib.suppress(OSError):
+                    p.unlink()
 
     def finish(self, run: RunContext) -> None:
         if run.status == "completed":
