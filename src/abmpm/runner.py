@@ -97,7 +97,7 @@ def run(
     if not resume:
         _check_initial_state(scene, sim)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
-    notes += _idle_colliders(scene) + [n for n in (slow_start_note(scene, sim.mode),) if n]
+    notes += _idle_colliders(scene, sim) + [n for n in (slow_start_note(scene, sim.mode),) if n]
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
@@ -209,13 +209,15 @@ def _trapped(scene: Scene, sim) -> list[str]:
     return notes
 
 
-def _idle_colliders(scene: Scene) -> list[str]:
+def _idle_colliders(scene: Scene, sim) -> list[str]:
     """A note for each collider that can touch nothing: no area, or (static) wholly
-    outside the domain. Likely a typo in its size, center or units."""
+    outside the domain. Likely a typo in its size, center or units. The meshes are the
+    simulation's own (one per collider, world space), not built again."""
+    if sim.colliders is None:
+        return []
     notes = []
     lo, hi = np.asarray(scene.simulation.domain_min), np.asarray(scene.simulation.domain_max)
-    for i, c in enumerate(scene.colliders):
-        mesh = collider_mesh(c, scene.resolve, f"colliders[{i}]")
+    for i, (c, mesh) in enumerate(zip(scene.colliders, sim.colliders.body_meshes())):
         if not mesh.area > 0.0:
             notes.append(f"colliders[{i}]: its mesh has no area, so it touches nothing")
         elif c.motion.is_static and (np.any(mesh.bounds[0] > hi) or np.any(mesh.bounds[1] < lo)):
