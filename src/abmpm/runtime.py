@@ -8,6 +8,7 @@ imports nothing of abmpm but the errors, so neither has to import the other.
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import warp as wp
@@ -74,6 +75,16 @@ def init_warp_silently() -> None:
         os.close(saved)
 
 
+# the device names choose_device understands ("" and "auto": a GPU when present)
+DEVICE_NAME = re.compile(r"(auto|cpu|cuda(:\d+)?)?")
+
+
+def device_name_problem(requested: str) -> str | None:
+    """Why ``requested`` is no device name at all (whether this machine has it is
+    choose_device's question), or None."""
+    return None if DEVICE_NAME.fullmatch(requested) else f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')"
+
+
 def choose_device(requested: str | None) -> str:
     """'cuda' when a GPU is present, else 'cpu'; an explicit request is honoured or refused."""
     init_warp()
@@ -92,4 +103,4 @@ def choose_device(requested: str | None) -> str:
         if not requested.startswith("cuda:") or not index.isdigit() or int(index) >= count:
             raise AbmpmError(f"unknown device {requested!r}: this machine has cuda:0 to cuda:{count - 1}")
         return requested
-    raise AbmpmError(f"unknown device {requested!r} (use 'cpu', 'cuda' or 'cuda:N')")
+    raise AbmpmError(device_name_problem(requested))

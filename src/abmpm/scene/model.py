@@ -15,6 +15,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import Field, Strict, create_model, field_validator, model_validator
 
+from ..runtime import device_name_problem
 from ..sim.materials import REGISTRY as MATERIAL_MODELS
 from ..sim.materials.base import MaterialModel
 from ..sim.reconstruct import DEFAULT_SURFACE_THRESHOLD
@@ -147,9 +148,10 @@ class SimulationSettings(_Strict):
     @field_validator("device")
     @classmethod
     def _device_name(cls, device: str | None) -> str | None:
-        # whether this machine has it is known only when the run starts (runtime.py)
-        if device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", device):
-            raise ValueError(f"unknown device {device!r} (use 'cpu', 'cuda' or 'cuda:N')")
+        # whether this machine has it is known only when the run starts (choose_device)
+        problem = None if device is None else device_name_problem(device)
+        if problem:
+            raise ValueError(problem)
         return device
 
     @model_validator(mode="after")
