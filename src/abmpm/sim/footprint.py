@@ -38,6 +38,9 @@ wp.set_module_options({"enable_backward": False})
 
 FOOTPRINT_NODES = 5  # nodes per axis of a footprint of half-width a <= 1 fine cell
 MAX_HALF_WIDTH = 1.0  # fine cells
+# fine nodes a footprint reaches past its particle's fine cell: 2 (a <= 1: nodes from
+# floor(X - a - 1.5) + 1 on), and one for round-off in X
+FOOTPRINT_REACH = 3
 WIDER_VOLUME = wp.constant(1.002**3)  # a box's volume over a cell's beyond which it is wider (round-off)
 vec5 = wp.types.vector(length=FOOTPRINT_NODES, dtype=float)
 

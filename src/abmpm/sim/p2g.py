@@ -275,6 +275,18 @@ def _make_scatter_footprint(cpic: bool):
     return scatter_footprint
 
 
+@wp.func
+def beside_region(coarse: GridSpec, beside: wp.array3d(dtype=wp.int32), x: wp.vec3):
+    # the particle's coarse cell lies in the refined region grown by BESIDE_CELLS
+    # (``Refiner.beside``): where the fine grid moves level-0 band particles, decided by
+    # the region alone, the same on either side of it whatever the blocks' alignment
+    X = (x - coarse.origin) * coarse.inv_dx
+    i = wp.clamp(int(X[0]), 0, beside.shape[0] - 1)
+    j = wp.clamp(int(X[1]), 0, beside.shape[1] - 1)
+    k = wp.clamp(int(X[2]), 0, beside.shape[2] - 1)
+    return beside[i, j, k] != 0
+
+
 def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
     scatter_footprint = _make_scatter_footprint(cpic)
 
@@ -282,17 +294,18 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
     def p2g_sparse(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
                    color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
                    grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
-                   tau_store: wp.array(dtype=wp.mat33), on_fine: wp.array(dtype=wp.int32)):
+                   tau_store: wp.array(dtype=wp.mat33), on_fine: wp.array(dtype=wp.int32),
+                   beside: wp.array3d(dtype=wp.int32), coarse: GridSpec):
         p = wp.tid() + first
         if s.level[p] == 0:
-            # A level-0 particle in a collider's band whose whole footprint lies in active
-            # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
+            # A level-0 particle in a collider's band beside the region whose whole footprint
+            # lies in active fine blocks is moved by the fine grid (g2p_sparse): its contact with the
             # collider is then the fine grid's, like the level-1 material it meets there
             # (docs/method.md, "Coarse particles in a collider's band move with the fine grid").
             # It is its box here where the box is wider than a fine cell (b >= 3), and in the
             # band at b = 2 too, where g2p_sparse gathers it with that kernel; every other
             # level-0 particle is a point and left to the coarse grid (the mark set afresh)
-            in_band = s.surface_body[p] >= 0
+            in_band = s.surface_body[p] >= 0 and beside_region(coarse, beside, s.x[p])
             on_fine[p] = 0
             if in_band or wider_than_a_cell(g, s.volume[p]):
                 whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)

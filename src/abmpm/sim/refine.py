@@ -20,6 +20,7 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
+from .footprint import FOOTPRINT_REACH
 from .grid import BLOCK, Grid, GridSpec
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
@@ -141,30 +142,53 @@ def split_particles(
 
 
 # Refinement runs every REFINE_EVERY steps. In that time a particle moves less than
-# REFINE_EVERY * cfl < 2 fine cells, so a level-1 particle asks for the blocks of its
-# stencil grown by ACTIVATION_MARGIN nodes on each side (a span of 7 nodes, checked
-# every 3 nodes so that no 4-node block in it is missed), and a particle entering the
+# REFINE_EVERY * cfl < 2 fine cells, so a particle asks for the blocks of the nodes it
+# reaches grown by ACTIVATION_MARGIN nodes on each side, and a particle entering the
 # region is split at most a few steps late, inside the region's halo.
 REFINE_EVERY = 4
 ACTIVATION_MARGIN = wp.constant(2)
+# A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region
+# (a cube around its cells) is moved by the fine grid (p2g_sparse; docs/method.md, "Where
+# the fine grid moves coarse particles"); those within one cell more ask for the blocks
+# of their footprints, so that the footprint is whole when they get there. Two cells:
+# quadratic stencils of particles less than 3 cells apart share coarse nodes, so a
+# level-0 particle this close to a region cell always meets the level-1 material there
+# on the coarse grid (Eq. 8); 3 cells read better on the plate matrix but took 1.05x
+# finest's steps on the 0.5-cell slit at b = 2 (docs/method.md)
+BESIDE_CELLS = 2
+
+
+@wp.func
+def want_blocks(g: GridSpec, lo: wp.vec3i, span: int, wanted: wp.array3d(dtype=wp.int32)):
+    # every 4-node block holding a node of the cube lo .. lo + span - 1: nodes checked
+    # every 3 along each axis, and the last one (several threads may write the same 1)
+    steps = (span + 1) // 3 + 1
+    for a in range(steps):
+        i = wp.clamp(lo[0] + wp.min(3 * a, span - 1), 0, g.dims[0] - 1) >> 2
+        for bb in range(steps):
+            j = wp.clamp(lo[1] + wp.min(3 * bb, span - 1), 0, g.dims[1] - 1) >> 2
+            for c in range(steps):
+                k = wp.clamp(lo[2] + wp.min(3 * c, span - 1), 0, g.dims[2] - 1) >> 2
+                if g.blocks[i, j, k] < 0:
+                    wanted[i, j, k] = 1
 
 
 @wp.kernel
-def flag_particle_blocks(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
-                         wanted: wp.array3d(dtype=wp.int32)):
-    # several threads may write the same 1: a benign race
+def flag_particle_blocks(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32),
+                         surface_body: wp.array(dtype=wp.int32), g: GridSpec, coarse: GridSpec,
+                         ask: wp.array3d(dtype=wp.int32), wanted: wp.array3d(dtype=wp.int32)):
     p = wp.tid() + first
-    if level[p] != g.level:
-        return
-    base = stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN)
-    for a in range(3):
-        for bb in range(3):
-            for c in range(3):
-                i = wp.clamp(base[0] + 3 * a, 0, g.dims[0] - 1) >> 2
-                j = wp.clamp(base[1] + 3 * bb, 0, g.dims[1] - 1) >> 2
-                k = wp.clamp(base[2] + 3 * c, 0, g.dims[2] - 1) >> 2
-                if g.blocks[i, j, k] < 0:
-                    wanted[i, j, k] = 1
+    if level[p] == g.level:  # its stencil's 3 nodes and the margin: 7 per axis
+        want_blocks(g, stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN), 3 + 2 * ACTIVATION_MARGIN, wanted)
+    elif surface_body[p] >= 0:
+        C = (x[p] - coarse.origin) * coarse.inv_dx
+        cell = wp.vec3i(wp.clamp(int(C[0]), 0, ask.shape[0] - 1), wp.clamp(int(C[1]), 0, ask.shape[1] - 1),
+                        wp.clamp(int(C[2]), 0, ask.shape[2] - 1))
+        if ask[cell[0], cell[1], cell[2]] != 0:  # its footprint's nodes around its fine cell, and the margin
+            X = (x[p] - g.origin) * g.inv_dx
+            lo = wp.vec3i(int(wp.floor(X[0])), int(wp.floor(X[1])), int(wp.floor(X[2])))
+            reach = FOOTPRINT_REACH + ACTIVATION_MARGIN
+            want_blocks(g, lo - wp.vec3i(reach), 2 + 2 * reach, wanted)
 
 
 @wp.kernel
@@ -191,6 +215,10 @@ class Refiner:
         cells = tuple(d - 1 for d in coarse.dims)
         self.region_cells = np.zeros(cells, dtype=bool)
         self.region = wp.zeros(cells, dtype=wp.int32, device=device)
+        # the region grown by BESIDE_CELLS, and by one cell more: the level-0 band particles
+        # the fine grid moves (p2g_sparse), and those that ask for their footprints' blocks
+        self.beside = wp.zeros(cells, dtype=wp.int32, device=device)
+        self.ask = wp.zeros(cells, dtype=wp.int32, device=device)
         # surface reconstruction: Eq. 16's node masses and gradients on the coarse grid
         self.surface = SurfaceField()
         self.surface.enabled = int(reconstruct)
@@ -216,13 +244,16 @@ class Refiner:
         are activated now, with the stencil reach of particles at the region's edge."""
         self.region_cells = np.asarray(cells, dtype=bool)
         self.region.assign(self.region_cells.astype(np.int32))
+        cube = np.ones((3, 3, 3), dtype=bool)
+        beside = ndimage.binary_dilation(self.region_cells, cube, iterations=BESIDE_CELLS)
+        self.beside.assign(beside.astype(np.int32))
+        self.ask.assign(ndimage.binary_dilation(beside, cube).astype(np.int32))
         if self.surface.enabled:
             # who scatters for Eq. 16: particles within the stencil reach (2 cells) of
             # a node that a splitting parent reads (1 cell beyond the region)
             self.surface.near.assign(ndimage.binary_dilation(self.region_cells, iterations=3).astype(np.int32))
             # the nodes a parent's occupied fraction reads (its stencil, and that of a point up
             # to a cell away from it): up to 3 cells from its own in any direction
-            cube = np.ones((3, 3, 3), dtype=bool)
             read = ndimage.binary_dilation(self.region_cells, cube, iterations=3)
             self.surface.read.assign(read.astype(np.int32))
             # the nodes smooth_surface_volume visits: every node whose cell (the node's
@@ -315,8 +346,9 @@ class Refiner:
     def activate(self, state: ParticleState, skip: int = 0) -> int:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones
         (the first ``skip`` are level 0); returns the first new slot."""
-        self.launcher.launch(flag_particle_blocks, state.count - skip, [state.x, state.level, self.fine.spec,
-                                                                        self.wanted], start=skip)
+        self.launcher.launch(flag_particle_blocks, state.count - skip,
+                             [state.x, state.level, state.surface_body, self.fine.spec, self.coarse.spec, self.ask,
+                              self.wanted], start=skip)
         return self._allocate()
 
 

@@ -194,8 +194,7 @@ class MPMSolver:
 
     @property
     def profile(self) -> KernelProfile | None:
-        """While set, every launch and phase of the step is timed into it (``abmpm
-        bench --profile``)."""
+        """While set, every launch and phase of the step is timed into it (bench --profile)."""
         return self.launcher.profile
 
     @profile.setter
@@ -392,8 +391,9 @@ class MPMSolver:
             private = self.launcher.private_grids(g.level, g.mv, g.m)  # a CPU part's own sums
             kernel = p2g_kernel(name, self.cpic, self.models)
             common = [s.arrays(), self.materials, g.spec, g.color, self._dt, self._cmask]
+            # the stress kept for the fine pass; the overlap marks; where the fine grid moves level 0
             kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ],
-                    "sparse": [self._tau, self._on_fine]}[name]  # the stress kept for the fine pass; the overlap marks
+                    "sparse": [self._tau, self._on_fine, self.refiner and self.refiner.beside, self.grid.spec]}[name]
             for site, (first, count) in enumerate(self._ranges[PASS_LEVEL[name]]):
                 self.launcher.launch(kernel, count,
                                      lambda part, first, count: [*common, *private.parts[part],
