@@ -186,8 +186,8 @@ def test_a_symmetric_drop_gains_no_sideways_momentum(factor):
     the other with the coarse one: 0.10 of the vertical at b = 3 by 0.076 s; with the blocks
     in place, which level-0 particles the fine grid moved still hung on the 4-node blocks'
     alignment: 0.020 (b = 3) and 0.0078 (b = 4); decided by the region alone
-    (``Refiner.beside``) 0.0015 and 0.0017. Bound 0.005: three times that, under both old
-    readings."""
+    (``Refiner.beside``) 0.00045 and 0.0011. Bound 0.005: four times the larger, under both
+    old readings."""
     scene, _ = plate_with_slit("adaptive", 1.0, factor)
     sim = Simulation(scene, device="cpu")
     sim.advance(seconds=0.076)

@@ -150,12 +150,11 @@ ACTIVATION_MARGIN = wp.constant(2)
 # A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region
 # (a cube around its cells) is moved by the fine grid (p2g_sparse; docs/method.md, "Where
 # the fine grid moves coarse particles"); those within one cell more ask for the blocks
-# of their footprints, so that the footprint is whole when they get there. Two cells:
-# quadratic stencils of particles less than 3 cells apart share coarse nodes, so a
-# level-0 particle this close to a region cell always meets the level-1 material there
-# on the coarse grid (Eq. 8); 3 cells read better on the plate matrix but took 1.05x
-# finest's steps on the 0.5-cell slit at b = 2 (docs/method.md)
-BESIDE_CELLS = 2
+# of their footprints, so that the footprint is whole when they get there. One cell: the
+# coarse cells next to the region, where level-0 and level-1 material meet; 2 and 3
+# cells read better on the plate matrix but compress the coarse water at the edge of
+# that zone in a deep tank on a plate (docs/method.md)
+BESIDE_CELLS = 1
 
 
 @wp.func
