@@ -33,7 +33,7 @@ import functools
 import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
-from .footprint import footprint, footprint_weights, wider_than_a_cell
+from .footprint import beside_region, footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     BLOCK_NODES,
     HOLDS_LEVEL1,
@@ -273,18 +273,6 @@ def _make_scatter_footprint(cpic: bool):
         return whole
 
     return scatter_footprint
-
-
-@wp.func
-def beside_region(coarse: GridSpec, beside: wp.array3d(dtype=wp.int32), x: wp.vec3):
-    # the particle's coarse cell lies in the refined region grown by BESIDE_CELLS
-    # (``Refiner.beside``): where the fine grid moves level-0 band particles, decided by
-    # the region alone, the same on either side of it whatever the blocks' alignment
-    X = (x - coarse.origin) * coarse.inv_dx
-    i = wp.clamp(int(X[0]), 0, beside.shape[0] - 1)
-    j = wp.clamp(int(X[1]), 0, beside.shape[1] - 1)
-    k = wp.clamp(int(X[2]), 0, beside.shape[2] - 1)
-    return beside[i, j, k] != 0
 
 
 def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):

@@ -20,7 +20,7 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
-from .footprint import FOOTPRINT_REACH
+from .footprint import FOOTPRINT_REACH, beside_region
 from .grid import BLOCK, Grid, GridSpec
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
@@ -149,11 +149,11 @@ REFINE_EVERY = 4
 ACTIVATION_MARGIN = wp.constant(2)
 # A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region
 # (a cube around its cells) is moved by the fine grid (p2g_sparse; docs/method.md, "Where
-# the fine grid moves coarse particles"); those within one cell more ask for the blocks
-# of their footprints, so that the footprint is whole when they get there. One cell: the
-# coarse cells next to the region, where level-0 and level-1 material meet; 2 and 3
-# cells read better on the plate matrix but compress the coarse water at the edge of
-# that zone in a deep tank on a plate (docs/method.md)
+# the fine grid moves coarse particles") and asks for the blocks of its footprint; until
+# it has them (the next refinement) the coarse grid moves it. One cell: the coarse cells
+# next to the region, where level-0 and level-1 material meet; 2 and 3 cells read better
+# on the plate matrix but compress the coarse water at the edge of that zone in a deep
+# tank on a plate
 BESIDE_CELLS = 1
 
 
@@ -175,19 +175,14 @@ def want_blocks(g: GridSpec, lo: wp.vec3i, span: int, wanted: wp.array3d(dtype=w
 @wp.kernel
 def flag_particle_blocks(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32),
                          surface_body: wp.array(dtype=wp.int32), g: GridSpec, coarse: GridSpec,
-                         ask: wp.array3d(dtype=wp.int32), wanted: wp.array3d(dtype=wp.int32)):
+                         beside: wp.array3d(dtype=wp.int32), wanted: wp.array3d(dtype=wp.int32)):
     p = wp.tid() + first
     if level[p] == g.level:  # its stencil's 3 nodes and the margin: 7 per axis
         want_blocks(g, stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN), 3 + 2 * ACTIVATION_MARGIN, wanted)
-    elif surface_body[p] >= 0:
-        C = (x[p] - coarse.origin) * coarse.inv_dx
-        cell = wp.vec3i(wp.clamp(int(C[0]), 0, ask.shape[0] - 1), wp.clamp(int(C[1]), 0, ask.shape[1] - 1),
-                        wp.clamp(int(C[2]), 0, ask.shape[2] - 1))
-        if ask[cell[0], cell[1], cell[2]] != 0:  # its footprint's nodes around its fine cell, and the margin
-            X = (x[p] - g.origin) * g.inv_dx
-            lo = wp.vec3i(int(wp.floor(X[0])), int(wp.floor(X[1])), int(wp.floor(X[2])))
-            reach = FOOTPRINT_REACH + ACTIVATION_MARGIN
-            want_blocks(g, lo - wp.vec3i(reach), 2 + 2 * reach, wanted)
+    elif surface_body[p] >= 0 and beside_region(coarse, beside, x[p]):  # the nodes of its footprint
+        X = (x[p] - g.origin) * g.inv_dx
+        lo = wp.vec3i(int(wp.floor(X[0])), int(wp.floor(X[1])), int(wp.floor(X[2]))) - wp.vec3i(FOOTPRINT_REACH)
+        want_blocks(g, lo, 2 + 2 * FOOTPRINT_REACH, wanted)
 
 
 @wp.kernel
@@ -214,10 +209,9 @@ class Refiner:
         cells = tuple(d - 1 for d in coarse.dims)
         self.region_cells = np.zeros(cells, dtype=bool)
         self.region = wp.zeros(cells, dtype=wp.int32, device=device)
-        # the region grown by BESIDE_CELLS, and by one cell more: the level-0 band particles
-        # the fine grid moves (p2g_sparse), and those that ask for their footprints' blocks
+        # the region grown by BESIDE_CELLS: the level-0 band particles the fine grid moves
+        # (p2g_sparse) and which ask for their footprints' blocks (flag_particle_blocks)
         self.beside = wp.zeros(cells, dtype=wp.int32, device=device)
-        self.ask = wp.zeros(cells, dtype=wp.int32, device=device)
         # surface reconstruction: Eq. 16's node masses and gradients on the coarse grid
         self.surface = SurfaceField()
         self.surface.enabled = int(reconstruct)
@@ -246,7 +240,6 @@ class Refiner:
         cube = np.ones((3, 3, 3), dtype=bool)
         beside = ndimage.binary_dilation(self.region_cells, cube, iterations=BESIDE_CELLS)
         self.beside.assign(beside.astype(np.int32))
-        self.ask.assign(ndimage.binary_dilation(beside, cube).astype(np.int32))
         if self.surface.enabled:
             # who scatters for Eq. 16: particles within the stencil reach (2 cells) of
             # a node that a splitting parent reads (1 cell beyond the region)
@@ -346,7 +339,7 @@ class Refiner:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones
         (the first ``skip`` are level 0); returns the first new slot."""
         self.launcher.launch(flag_particle_blocks, state.count - skip,
-                             [state.x, state.level, state.surface_body, self.fine.spec, self.coarse.spec, self.ask,
+                             [state.x, state.level, state.surface_body, self.fine.spec, self.coarse.spec, self.beside,
                               self.wanted], start=skip)
         return self._allocate()
 
