@@ -23,9 +23,9 @@ footprints of a lattice of boxes tile space: their volume field is uniform on th
 fine grid for every b. Its second moment is (1/4 + a^2/3) dx'^2 per axis (N's 1/4
 plus the box's variance), the inertia D of MLS-MPM (Eq. 10) that the stress uses in
 place of the point kernel's dx'^2/4. At b = 2 (a = 1/2) points one cell apart already
-sum to 1, so only a particle in a collider's band takes its box there, the kernel the
-fine grid moves it with (``p2g_sparse``; docs/method.md, "The contact band's ties, and
-the band rule at b = 2").
+sum to 1, so only a particle in a collider's band next to the region takes its box there,
+the kernel the fine grid moves it with (``p2g_sparse``; docs/method.md, "The contact
+band's ties, and the band rule at b = 2").
 """
 
 from __future__ import annotations
