@@ -138,14 +138,3 @@ def footprint_weights(g: GridSpec, x: wp.vec3, fp: Footprint):
     out.wz = box_weights(X[2], fp.a[2], fp.base[2])
     return out
 
-
-@wp.func
-def beside_region(coarse: GridSpec, beside: wp.array3d(dtype=wp.int32), x: wp.vec3):
-    # the particle's coarse cell lies in the refined region grown by BESIDE_CELLS
-    # (``Refiner.beside``): where the fine grid moves level-0 band particles, decided by
-    # the region alone, the same on either side of it whatever the blocks' alignment
-    X = (x - coarse.origin) * coarse.inv_dx
-    i = wp.clamp(int(X[0]), 0, beside.shape[0] - 1)
-    j = wp.clamp(int(X[1]), 0, beside.shape[1] - 1)
-    k = wp.clamp(int(X[2]), 0, beside.shape[2] - 1)
-    return beside[i, j, k] != 0

@@ -135,6 +135,15 @@ def nearest_node_coords(g: GridSpec, x: wp.vec3):
                     wp.clamp(int(X[2] + 0.5), 0, g.dims[2] - 1))
 
 
+@wp.func
+def cell_flag(g: GridSpec, cells: wp.array3d(dtype=wp.int32), x: wp.vec3):
+    """The value of a per-cell array of grid ``g`` (one entry per cell) at the cell
+    holding x, clamped into the array (a region's flags and the masks grown from them)."""
+    X = (x - g.origin) * g.inv_dx
+    return cells[wp.clamp(int(X[0]), 0, cells.shape[0] - 1), wp.clamp(int(X[1]), 0, cells.shape[1] - 1),
+                 wp.clamp(int(X[2]), 0, cells.shape[2] - 1)]
+
+
 @dataclass
 class Grid:
     spec: GridSpec

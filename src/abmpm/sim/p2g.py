@@ -33,12 +33,13 @@ import functools
 import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
-from .footprint import beside_region, footprint, footprint_weights, wider_than_a_cell
+from .footprint import footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     BLOCK_NODES,
     HOLDS_LEVEL1,
     REACHED_BY_LEVEL0,
     GridSpec,
+    cell_flag,
     dense_node_index,
     node_index,
     node_position,
@@ -286,18 +287,19 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
                    beside: wp.array3d(dtype=wp.int32), coarse: GridSpec):
         p = wp.tid() + first
         if s.level[p] == 0:
-            # A level-0 particle in a collider's band beside the region whose whole footprint
-            # lies in active fine blocks is moved by the fine grid (g2p_sparse): its contact with the
+            # A level-0 particle in a collider's band beside the region (``Refiner.beside``, decided
+            # by the region whatever the blocks' alignment) whose whole footprint lies in active
+            # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
             # collider is then the fine grid's, like the level-1 material it meets there
             # (docs/method.md, "Coarse particles in a collider's band move with the fine grid").
             # It is its box here where the box is wider than a fine cell (b >= 3), and in the
             # band at b = 2 too, where g2p_sparse gathers it with that kernel; every other
             # level-0 particle is a point and left to the coarse grid (the mark set afresh)
-            in_band = s.surface_body[p] >= 0 and beside_region(coarse, beside, s.x[p])
+            band_beside = s.surface_body[p] >= 0 and cell_flag(coarse, beside, s.x[p]) != 0
             on_fine[p] = 0
-            if in_band or wider_than_a_cell(g, s.volume[p]):
+            if band_beside or wider_than_a_cell(g, s.volume[p]):
                 whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
-                on_fine[p] = wp.where(whole and in_band, 1, 0)
+                on_fine[p] = wp.where(whole and band_beside, 1, 0)
                 return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .grid import GridSpec, nearest_node_coords, node_index
+from .grid import GridSpec, cell_flag, nearest_node_coords, node_index
 from .materials import MaterialParams, carries_F, volume_ratio
 from .parallel import EMPTY_BOUND, Reach, ThreadSums, add_thread_sums, widen_reach
 from .state import ParticleArrays
@@ -145,11 +145,7 @@ def scatter_surface_mass(first: int, s: ParticleArrays, materials: wp.array(dtyp
     # which ``add_surface_sums`` adds in part order (sim/parallel.py).
     p = wp.tid() + first
     xp = s.x[p]
-    X = (xp - g.origin) * g.inv_dx
-    ci = wp.clamp(int(X[0]), 0, near.shape[0] - 1)
-    cj = wp.clamp(int(X[1]), 0, near.shape[1] - 1)
-    ck = wp.clamp(int(X[2]), 0, near.shape[2] - 1)
-    if near[ci, cj, ck] == 0:
+    if cell_flag(g, near, xp) == 0:
         return
     m = s.mass[p]
     vol = s.volume[p] * volume_ratio(materials[s.material[p]], s.F[p], s.history[p])

@@ -20,8 +20,8 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ColliderArrays, stop_crossing
-from .footprint import FOOTPRINT_REACH, beside_region
-from .grid import BLOCK, Grid, GridSpec
+from .footprint import FOOTPRINT_REACH
+from .grid import BLOCK, Grid, GridSpec, cell_flag
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
@@ -45,11 +45,7 @@ def flag_splits(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp
     flag[p] = 0
     if level[p] != 0:
         return
-    X = (x[p] - g0.origin) * g0.inv_dx
-    i = wp.clamp(int(X[0]), 0, region.shape[0] - 1)
-    j = wp.clamp(int(X[1]), 0, region.shape[1] - 1)
-    k = wp.clamp(int(X[2]), 0, region.shape[2] - 1)
-    flag[p] = region[i, j, k]
+    flag[p] = cell_flag(g0, region, x[p])
 
 
 # child spacings: a split child starts at least this far inside a domain wall, as close
@@ -179,7 +175,7 @@ def flag_particle_blocks(first: int, x: wp.array(dtype=wp.vec3), level: wp.array
     p = wp.tid() + first
     if level[p] == g.level:  # its stencil's 3 nodes and the margin: 7 per axis
         want_blocks(g, stencil_base(g, x[p]) - wp.vec3i(ACTIVATION_MARGIN), 3 + 2 * ACTIVATION_MARGIN, wanted)
-    elif surface_body[p] >= 0 and beside_region(coarse, beside, x[p]):  # the nodes of its footprint
+    elif surface_body[p] >= 0 and cell_flag(coarse, beside, x[p]) != 0:  # the nodes of its footprint
         X = (x[p] - g.origin) * g.inv_dx
         lo = wp.vec3i(int(wp.floor(X[0])), int(wp.floor(X[1])), int(wp.floor(X[2]))) - wp.vec3i(FOOTPRINT_REACH)
         want_blocks(g, lo, 2 + 2 * FOOTPRINT_REACH, wanted)
