@@ -13,6 +13,11 @@ conservation law) and kinetic energy, against the bar sampled fine everywhere:
   coarse grid and 1 - a to the fine one, full stencils on both, and gathers the same
   shares back; a goes from 1 to 0 across a band of ``band`` coarse cells around the
   interface. Momentum is exact for any a.
+* ``hanging``: each level on its own grid only; the fine nodes left of ``edge`` (the
+  region's edge) that level 1 reaches are not unknowns of their own but hang on the
+  coarse grid, as in adaptive finite elements: their mass and momentum are handed to the
+  coarse nodes with the coarse B-spline weights at the node (restriction) and they take
+  the coarse velocity interpolated there (prolongation, its transpose). Momentum is exact.
 
 Run: ``python docs/prototypes/interface_1d.py`` (numpy only, a few seconds).
 """
@@ -40,8 +45,9 @@ def weights(x, dx):
 
 class Bar:
     def __init__(self, scheme: str, band: float = 2.0, shares: tuple[float, float] = (0.5, 0.5),
-                 affine_kick: bool = False, band_gradient: bool = False, smooth: bool = False):
+                 affine_kick: bool = False, band_gradient: bool = False, smooth: bool = False, edge: float = 0.25):
         self.scheme, self.band, self.shares, self.affine_kick = scheme, band, shares, affine_kick
+        self.edge = LI + edge * DX  # hanging: the region's edge, in coarse cells right of the interface
         self.band_gradient, self.smooth = band_gradient, smooth
         xs, ms, lv = [], [], []
         for lo, hi, fine in ((L0, LI, scheme == "finest"), (LI, L1, scheme != "original")):
@@ -136,6 +142,24 @@ class Bar:
             v1, C1 = self.gather(DX / 2, vf)
             self.v = np.where(own0, v0, v1)
             self.C = np.where(own0, C0, C1)
+        elif self.scheme == "hanging":
+            own0, own1 = self.level == 0, self.level == 1
+            p0c, m0c = self.sums(DX, own0, None)
+            p1f, m1f = self.sums(DX / 2, own1, None)
+            xf = np.arange(len(p1f)) * DX / 2
+            hang = (xf < self.edge) & (m1f > 0)  # fine nodes outside the region
+            base, w, _ = weights(xf, DX)
+            idx = np.clip(base[:, None] + np.arange(3), 0, len(p0c) - 1)
+            for k in range(3):  # restriction: the hanging nodes' sums onto the coarse nodes
+                np.add.at(p0c, idx[hang, k], w[hang, k] * p1f[hang])
+                np.add.at(m0c, idx[hang, k], w[hang, k] * m1f[hang])
+            vc = np.divide(p0c, m0c, out=np.zeros_like(p0c), where=m0c > 0)
+            vf = np.divide(p1f, m1f, out=np.zeros_like(p1f), where=m1f > 0)
+            vf = np.where(hang, (w * vc[idx]).sum(1), vf)  # prolongation
+            v0, C0 = self.gather(DX, vc)
+            v1, C1 = self.gather(DX / 2, vf)
+            self.v = np.where(own0, v0, v1)
+            self.C = np.where(own0, C0, C1)
         elif self.scheme in ("ghosts", "kick"):
             own0, own1 = self.level == 0, self.level == 1
             _, mc0 = self.scatter(DX, own0.astype(float))  # where level 0 reaches the coarse grid
@@ -218,7 +242,8 @@ if __name__ == "__main__":
                        ("blend", {"band": 8.0}), ("blend", {"band": 2.0, "band_gradient": True}),
                        ("blend", {"band": 4.0, "band_gradient": True}),
                        ("blend", {"band": 2.0, "band_gradient": True, "smooth": True}),
-                       ("blend", {"band": 4.0, "band_gradient": True, "smooth": True})):
+                       ("blend", {"band": 4.0, "band_gradient": True, "smooth": True}),
+                       ("hanging", {"edge": 0.25}), ("hanging", {"edge": 1.0}), ("hanging", {"edge": 2.0})):
         r = run(scheme, **kw)
         label = scheme + "".join(f" ({k} {v})" for k, v in kw.items())
         print(f"{label:<32} momentum drift / one half's {r['drift']:.1e}   kinetic energy peaks "
