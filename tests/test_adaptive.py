@@ -287,6 +287,40 @@ def test_merge_after_split_conserves_mass_and_momentum(n, seed):
     assert np.allclose(merged["x"][order], x, atol=1e-6)
 
 
+def test_children_among_coarse_particles_move_with_the_coarse_grid():
+    """The mark of ``Refiner.coarse_children`` against the rule computed here from the
+    particles: a level-1 particle outside the zone beside the region (no collider here),
+    whose coarse cell holds more level-0 than level-1 mass, moves with the coarse grid
+    (ON_COARSE); every other child with the fine grid. A refined water column collapses on to
+    a coarse layer (children and coarse particles mix), then the region is taken away."""
+    from abmpm.sim.grid import ON_COARSE
+
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            domain_max=(0.8, 0.4, 0.2), dx=0.05, fps=30,
+            refinement={"mode": "adaptive", "factor": 2, "boxes": [((0.0, 0.0, 0.0), (0.2, 0.4, 0.2))]}),
+        materials=[sm.Fluid(name="water")],
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.2, 0.3, 0.2)),
+                sm.BoxBody(material="water", min=(0.2, 0.0, 0.0), max=(0.8, 0.1, 0.2))],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    sim.advance(frames=4)
+    solver, state = sim.solver, sim._state
+    solver.set_region(np.zeros(solver.region.shape, dtype=bool))
+    solver.begin_segment(state, sim.time, 1e-4)  # marks the children for the segment
+    a = state.numpy()
+    mark = solver._on_fine.numpy()[:state.count]
+    cell = np.clip(np.floor((a["x"] - solver.grid_origin) / solver.grid.dx).astype(int), 0,
+                   np.array(solver.region.shape) - 1)
+    flat = np.ravel_multi_index(cell.T, solver.region.shape)
+    m = [np.bincount(flat[a["level"] == lv], a["mass"][a["level"] == lv], minlength=flat.max() + 1)
+         for lv in (0, 1)]
+    child = a["level"] == 1
+    expect = child & (a["surface_body"] < 0) & (m[0][flat] > 0.5 * (m[0][flat] + m[1][flat]))
+    assert np.array_equal(mark[child] == ON_COARSE, expect[child])
+    assert 0 < expect.sum() < child.sum()  # both kinds are there
+
+
 def test_families_merge_back_after_leaving_the_region():
     scene = abmpm.Scene(
         simulation=abmpm.SimulationSettings(

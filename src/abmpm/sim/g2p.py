@@ -6,7 +6,9 @@ finest modes), ``g2p_sparse`` on the fine block-sparse grid. Beyond the paper, a
 level-0 particle in a collider's band whose box lies whole in active fine blocks
 (``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its box as
 the kernel (``gather_box``; docs/method.md, "Coarse particles in a collider's band
-move with the fine grid"), and keeps its own grid's band and colors. With colliders an
+move with the fine grid"), and keeps its own grid's band and colors. The other way
+round, a child among coarse particles away from the region (``Refiner.coarse_children``
+marks it ON_COARSE) moves with the coarse grid as a point of it. With colliders an
 incompatible node lends the particle's boundary velocity instead of its own
 (Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
 deformation update and the material's return mapping (Eqs. 7, 13-14), and the
@@ -34,7 +36,7 @@ from .colliders import (
     stop_crossing,
 )
 from .footprint import footprint, footprint_weights
-from .grid import GridSpec, node_index, node_position, stencil_node, stencil_slots
+from .grid import ON_COARSE, GridSpec, node_index, node_position, stencil_node, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
@@ -180,16 +182,22 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
     ):
         p = wp.tid() + first
+        # on_fine: 1 a level-0 particle the fine grid moves, ON_COARSE a child the coarse grid moves
+        mark = int(0)
+        if on_fine.shape[0] > p:  # length 1 where no fine grid exists
+            mark = on_fine[p]
         level0_here = s.level[p] != g.level  # a level-0 particle on the fine grid
-        if level0_here:
-            if wp.static(not sparse):
+        if wp.static(sparse):
+            if level0_here and mark != 1:
                 return
-            if on_fine[p] == 0:
+            if not level0_here and mark == ON_COARSE:
                 return
-        if wp.static(not sparse):
-            if on_fine.shape[0] > p:  # length 1 where no fine grid exists
-                if on_fine[p] != 0:
-                    return
+        else:
+            if level0_here and mark != ON_COARSE:
+                return
+            if not level0_here and mark != 0:
+                return
+            level0_here = False  # a child here is a point of this grid like its own particles
         dt = dt_now[0]
         xp = s.x[p]
         new_v = wp.vec3(0.0)

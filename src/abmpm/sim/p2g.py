@@ -11,7 +11,9 @@ With colliders, a particle scatters only to the nodes on its side of every surfa
                        reach is marked as part of the overlap
 ``p2g_overlap``        adaptive, coarse grid: level-1 particles, into the marked
                        nodes only (the overlap of Eq. 8, where coarse particles
-                       can feel them); elsewhere nobody gathers from the coarse grid
+                       can feel them); elsewhere nobody gathers from the coarse grid;
+                       a child the coarse grid moves (``Refiner.coarse_children``)
+                       with its whole stencil
 ``p2g_sparse``         adaptive, fine block-sparse grid: every particle, to the
                        active blocks; a level-0 particle wider than a fine cell
                        as its box (``sim/footprint.py``)
@@ -37,6 +39,7 @@ from .footprint import footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     BLOCK_NODES,
     HOLDS_LEVEL1,
+    ON_COARSE,
     REACHED_BY_LEVEL0,
     GridSpec,
     cell_flag,
@@ -192,20 +195,23 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
     def p2g_overlap(first: int, s: ParticleArrays, materials: wp.array(dtype=MaterialParams), g: GridSpec,
                     color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
                     grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
-                    tau_store: wp.array(dtype=wp.mat33), overlap: wp.array(dtype=wp.int32)):
+                    tau_store: wp.array(dtype=wp.mat33), overlap: wp.array(dtype=wp.int32),
+                    on_fine: wp.array(dtype=wp.int32)):
         p = wp.tid() + first
         if s.level[p] != 1:
             return
         st = dense_stencil(g, s.x[p])
         tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
         tau_store[p] = tau  # for p2g_sparse
-        if not overlap_reached(g, overlap, st.base):
+        # a child the coarse grid moves (Refiner.coarse_children) scatters its whole stencil
+        mover = wp.where(on_fine[p] == ON_COARSE, 0, 1)
+        if mover == 1 and not overlap_reached(g, overlap, st.base):
             return
         affine = affine_momentum(s, p, g, dt_now[0], tau)
         mask = ALL_NODES
         if wp.static(cpic):
             if s.surface_body[p] >= 0:
-                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], mover,
                                      color, g, st, cmask, p)
             elif near_surface(color, g, s.x[p]):
                 # A level-1 particle's color reaches PARTICLE_BAND fine cells, but its
@@ -220,7 +226,7 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
             for j in range(3):
                 for k in range(3):
                     n = dense_node_at(g, st, i, j, k)
-                    if overlap[n] != 0:
+                    if overlap[n] != 0 or mover == 0:
                         weight = weight_at(st, i, j, k)
                         if wp.static(cpic):
                             weight = weight * node_bit(mask, i, j, k)
@@ -308,9 +314,9 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
         affine = affine_momentum(s, p, g, dt_now[0], tau_store[p])  # the stress the coarse passes kept
         mask = ALL_NODES
         if wp.static(cpic):
-            if s.surface_body[p] >= 0:
-                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p], s.level[p],
-                                     color, g, st, cmask, p)
+            if s.surface_body[p] >= 0:  # a child the coarse grid moves keeps the coarse grid's mask
+                mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p],
+                                     wp.where(on_fine[p] == ON_COARSE, 0, s.level[p]), color, g, st, cmask, p)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
         for i in range(3):

@@ -19,9 +19,9 @@ import numpy as np
 import warp as wp
 from scipy import ndimage
 
-from .colliders import ColliderArrays, stop_crossing
+from .colliders import ColliderArrays, ColorField, near_surface, stop_crossing
 from .footprint import FOOTPRINT_REACH
-from .grid import BLOCK, Grid, GridSpec, cell_flag
+from .grid import BLOCK, ON_COARSE, Grid, GridSpec, cell_flag
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
@@ -34,6 +34,7 @@ from .reconstruct import (
 )
 from .state import ParticleArrays, ParticleState
 from .stencil import stencil_base
+from .time_levels import cell_of
 
 wp.set_module_options({"enable_backward": False})
 
@@ -192,6 +193,45 @@ def allocate_blocks(g: GridSpec, wanted: wp.array3d(dtype=wp.int32), counter: wp
     wanted[i, j, k] = 0
 
 
+# A child outside the zone beside the region, touching no collider, in a coarse cell where
+# level-0 mass is more than this share of the whole moves with the coarse grid
+# (``coarse_children``; docs/method.md, "Children among coarse particles move with the
+# coarse grid"). Half: the grid that moves most of the cell's material.
+COARSE_SHARE = 0.5
+
+
+@wp.kernel
+def cell_masses(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
+                g: GridSpec, m0: wp.array(dtype=float), m1: wp.array(dtype=float)):
+    # each level's mass per coarse cell (one CPU thread: Warp's CPU atomics are plain adds)
+    p = wp.tid()
+    if level[p] == 0:
+        wp.atomic_add(m0, cell_of(g, x[p]), mass[p])
+    else:
+        wp.atomic_add(m1, cell_of(g, x[p]), mass[p])
+
+
+@wp.kernel
+def mark_coarse_children(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32),
+                         surface_body: wp.array(dtype=wp.int32), g: GridSpec, m0: wp.array(dtype=float),
+                         m1: wp.array(dtype=float), beside: wp.array3d(dtype=wp.int32), share: float,
+                         color: ColorField, colliders: int, on_fine: wp.array(dtype=wp.int32)):
+    # (a child within the coarse band of a surface is left to the fine grid: its color, of its
+    # own finer band, would not keep its coarse stencil to its side of the surface)
+    p = wp.tid() + first
+    if level[p] != 1:
+        return
+    mark = int(0)
+    far = surface_body[p] < 0
+    if colliders != 0 and far:
+        far = not near_surface(color, g, x[p])
+    if far and cell_flag(g, beside, x[p]) == 0:
+        c = cell_of(g, x[p])
+        if m0[c] > share * (m0[c] + m1[c]):
+            mark = ON_COARSE
+    on_fine[p] = mark
+
+
 class Refiner:
     """Owns the refined region and keeps the particles and the fine grid in step with it."""
 
@@ -208,6 +248,7 @@ class Refiner:
         # the region grown by BESIDE_CELLS: the level-0 band particles the fine grid moves
         # (p2g_sparse) and which ask for their footprints' blocks (flag_particle_blocks)
         self.beside = wp.zeros(cells, dtype=wp.int32, device=device)
+        self._cell_m = [wp.zeros(int(np.prod(cells)), dtype=float, device=device) for _ in range(2)]  # coarse_children
         # surface reconstruction: Eq. 16's node masses and gradients on the coarse grid
         self.surface = SurfaceField()
         self.surface.enabled = int(reconstruct)
@@ -330,6 +371,24 @@ class Refiner:
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split
+
+    def coarse_children(self, state: ParticleState, on_fine: wp.array, color: ColorField, colliders: bool) -> None:
+        """Mark in ``on_fine`` (ON_COARSE, else 0) the level-1 particles the coarse grid moves:
+        outside the zone beside the region (``beside``), farther from every collider than the
+        coarse grid's particle band (``color``: the coarse grid's, if ``colliders``), in a coarse cell
+        whose mass is more than COARSE_SHARE level 0. Each level's J follows the grid that moves
+        it; a child among coarse particles, moved by the fine grid, is squeezed by coarse
+        material whose pressure that grid's nodes do not balance (docs/method.md)."""
+        n = state.count
+        if n == 0:
+            return
+        self._cell_m[0].zero_()
+        self._cell_m[1].zero_()
+        wp.launch(cell_masses, n, [state.x, state.level, state.mass, self.coarse.spec, *self._cell_m],
+                  device=self.device)
+        self.launcher.launch(mark_coarse_children, n, [state.x, state.level, state.surface_body, self.coarse.spec,
+                                                       *self._cell_m, self.beside, COARSE_SHARE, color,
+                                                       int(colliders), on_fine])
 
     def activate(self, state: ParticleState, skip: int = 0) -> int:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones

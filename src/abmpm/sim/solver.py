@@ -58,8 +58,7 @@ from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off
 
 wp.set_module_options({"enable_backward": False})
 
-# The longest segment (substeps between host points): segments end at every refinement step,
-# in every mode, so that their lengths repeat and graphs are reused.
+# The longest segment (substeps between host points): to every refinement step, in every mode (graphs reused)
 SEGMENT_MAX = REFINE_EVERY
 
 class MPMSolver:
@@ -255,9 +254,8 @@ class MPMSolver:
         return self.slow.gather(state, self._ranges["slow"][0], g2p_kernel(False, self.cpic, self.models), common)
 
     def begin_segment(self, state: ParticleState, time: float, dt: float, substeps: int = 1) -> None:
-        """Host point before ``substeps`` (at most ``segment_length``) substeps of
-        length ``dt`` from ``time``: everything that allocates, reads back or uploads
-        from the host happens here, never in a substep."""
+        """Host point before ``substeps`` (at most ``segment_length``) substeps of length ``dt`` from
+        ``time``: everything that allocates, reads back or uploads from the host happens here, never in a substep."""
         if not 1 <= substeps <= self.segment_length:
             raise ValueError(f"a segment has 1 to {self.segment_length} substeps now, not {substeps}")
         if self.slow_due:
@@ -267,7 +265,9 @@ class MPMSolver:
         if self.refiner is not None and self._steps % REFINE_EVERY == 0:
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
-        self._reserve(state)  # 3. buffers, dt, CFL signal slots
+        self._reserve(state)  # 3. buffers, dt, CFL signal slots; the children the coarse grid moves
+        if self.refiner is not None:
+            self.refiner.coarse_children(state, self._on_fine, self.grid.color, self.colliders is not None)
         self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
         if self.slow is not None and not self.slow.open and self.block > 1 and self._ranges["slow"][0][1]:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
@@ -392,7 +392,7 @@ class MPMSolver:
             kernel = p2g_kernel(name, self.cpic, self.models)
             common = [s.arrays(), self.materials, g.spec, g.color, self._dt, self._cmask]
             # the stress kept for the fine pass; the overlap marks; where the fine grid moves level 0
-            kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ],
+            kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ, self._on_fine],
                     "sparse": [self._tau, self._on_fine, self.refiner and self.refiner.beside, self.grid.spec]}[name]
             for site, (first, count) in enumerate(self._ranges[PASS_LEVEL[name]]):
                 self.launcher.launch(kernel, count,
@@ -424,8 +424,8 @@ class MPMSolver:
             kernel = g2p_kernel(g.sparse, self.cpic, self.models)
             common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask,
                       self.grid.spec, self.grid.color, self._on_fine, self.stiffness.stiff]
-            # fine: a launch per level's fast range (on_fine marks the level-0 particles it moves)
-            for site, (first, count) in enumerate(self._ranges[None] if g.sparse else self._ranges[g.level]):
+            # adaptive: a launch per level's fast range on each grid (on_fine marks who moves with which)
+            for site, (first, count) in enumerate(self._ranges[None] if self.refiner else self._ranges[g.level]):
                 self.launcher.launch(kernel, count, lambda part, first, count: [*common, signal_slots[part]],
                                      start=first, label=f"G2P {g.name}", min_range=MIN_TRANSFER_RANGE, site=site)
 
