@@ -137,4 +137,3 @@ def footprint_weights(g: GridSpec, x: wp.vec3, fp: Footprint):
     out.wy = box_weights(X[1], fp.a[1], fp.base[1])
     out.wz = box_weights(X[2], fp.a[2], fp.base[2])
     return out
-

@@ -36,7 +36,7 @@ from .colliders import (
     stop_crossing,
 )
 from .footprint import footprint, footprint_weights
-from .grid import ON_COARSE, GridSpec, node_index, node_position, stencil_node, stencil_slots
+from .grid import GridSpec, moving_level, node_index, node_position, stencil_node, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
 from .state import ParticleArrays
@@ -182,22 +182,10 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
     ):
         p = wp.tid() + first
-        # on_fine: 1 a level-0 particle the fine grid moves, ON_COARSE a child the coarse grid moves
-        mark = int(0)
-        if on_fine.shape[0] > p:  # length 1 where no fine grid exists
-            mark = on_fine[p]
-        level0_here = s.level[p] != g.level  # a level-0 particle on the fine grid
-        if wp.static(sparse):
-            if level0_here and mark != 1:
-                return
-            if not level0_here and mark == ON_COARSE:
-                return
-        else:
-            if level0_here and mark != ON_COARSE:
-                return
-            if not level0_here and mark != 0:
-                return
-            level0_here = False  # a child here is a point of this grid like its own particles
+        if moving_level(on_fine, p, s.level[p]) != g.level:  # another grid moves it
+            return
+        # a level-0 particle on the fine grid (a child on the coarse grid is a point of it)
+        level0_here = s.level[p] < g.level
         dt = dt_now[0]
         xp = s.x[p]
         new_v = wp.vec3(0.0)

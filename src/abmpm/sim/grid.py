@@ -40,6 +40,19 @@ HOLDS_LEVEL1 = wp.constant(2)
 ON_COARSE = wp.constant(2)
 
 
+@wp.func
+def moving_level(on_fine: wp.array(dtype=wp.int32), p: int, level: int):
+    """The level of the grid that moves particle p of ``level`` (its own unless ``on_fine``
+    marks it; an ``on_fine`` of length 1, where no fine grid exists, marks no one)."""
+    if on_fine.shape[0] <= p:
+        return level
+    if level == 0 and on_fine[p] == 1:
+        return 1
+    if level == 1 and on_fine[p] == ON_COARSE:
+        return 0
+    return level
+
+
 @wp.struct
 class GridSpec:
     origin: wp.vec3  # position of node (0, 0, 0)

@@ -39,11 +39,11 @@ from .footprint import footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     BLOCK_NODES,
     HOLDS_LEVEL1,
-    ON_COARSE,
     REACHED_BY_LEVEL0,
     GridSpec,
     cell_flag,
     dense_node_index,
+    moving_level,
     node_index,
     node_position,
     stencil_node,
@@ -204,7 +204,7 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
         tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
         tau_store[p] = tau  # for p2g_sparse
         # a child the coarse grid moves (Refiner.coarse_children) scatters its whole stencil
-        mover = wp.where(on_fine[p] == ON_COARSE, 0, 1)
+        mover = moving_level(on_fine, p, 1)
         if mover == 1 and not overlap_reached(g, overlap, st.base):
             return
         affine = affine_momentum(s, p, g, dt_now[0], tau)
@@ -316,7 +316,7 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
         if wp.static(cpic):
             if s.surface_body[p] >= 0:  # a child the coarse grid moves keeps the coarse grid's mask
                 mask = own_side_mask(s.surface_point[p], s.surface_side[p], s.surface_body[p], s.x[p],
-                                     wp.where(on_fine[p] == ON_COARSE, 0, s.level[p]), color, g, st, cmask, p)
+                                     moving_level(on_fine, p, s.level[p]), color, g, st, cmask, p)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
         for i in range(3):
