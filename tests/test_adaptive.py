@@ -316,9 +316,44 @@ def test_children_among_coarse_particles_move_with_the_coarse_grid():
     m = [np.bincount(flat[a["level"] == lv], a["mass"][a["level"] == lv], minlength=flat.max() + 1)
          for lv in (0, 1)]
     child = a["level"] == 1
-    expect = child & (a["surface_body"] < 0) & (m[0][flat] > 0.5 * (m[0][flat] + m[1][flat]))
+    expect = child & (m[0][flat] > 0.5 * (m[0][flat] + m[1][flat]))
     assert np.array_equal(mark[child] == ON_COARSE, expect[child])
     assert 0 < expect.sum() < child.sum()  # both kinds are there
+
+
+def test_a_child_the_coarse_grid_moves_is_colored_on_the_coarse_grid():
+    """A child carries a color within PARTICLE_BAND fine cells of a surface; the coarse grid's
+    stencil reaches farther. A child marked ON_COARSE with no color but within the coarse
+    band of a sheet is colored at the mark, so that its first coarse transfers keep to its
+    side: refined water collapses under a sheet 0.2 m up (b = 2), and every such child reads
+    the sheet's closest point (float32)."""
+    from abmpm.sim.colliders import PARTICLE_BAND
+    from abmpm.sim.grid import ON_COARSE
+
+    lo, hi, y_sheet = np.array([0.3, 0.2, -0.05]), np.array([0.8, 0.2, 0.25]), 0.2  # the sheet's rectangle
+    scene = abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            domain_max=(0.8, 0.4, 0.2), dx=0.05, fps=30,
+            refinement={"mode": "adaptive", "factor": 2, "boxes": [((0.0, 0.0, 0.0), (0.2, 0.4, 0.2))]}),
+        materials=[sm.Fluid(name="water")],
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.2, 0.3, 0.2)),
+                sm.BoxBody(material="water", min=(0.2, 0.0, 0.0), max=(0.8, 0.1, 0.2))],
+        colliders=[sm.SheetCollider(size=(0.5, 0.3), center=(0.55, y_sheet, 0.1), refine=False)],
+    )
+    sim = abmpm.Simulation(scene, device="cpu")
+    sim.advance(frames=8)  # the children reach under the sheet
+    solver, state = sim.solver, sim._state
+    solver.set_region(np.zeros(solver.region.shape, dtype=bool))
+    before = state.numpy()["surface_body"].copy()
+    solver.begin_segment(state, sim.time, 1e-4)
+    a = state.numpy()
+    mark = solver._on_fine.numpy()[:state.count]
+    foot = np.clip(a["x"], lo, hi)  # the closest point of the sheet
+    near = np.linalg.norm(a["x"] - foot, axis=1) < PARTICLE_BAND * 0.05 - 1e-3
+    new = (a["level"] == 1) & (mark == ON_COARSE) & (before < 0) & near
+    assert new.sum() > 20  # uncolored children in the coarse band, marked
+    assert (a["surface_body"][new] == 0).all()
+    assert np.allclose(a["surface_point"][new], foot[new], atol=1e-5)
 
 
 def test_families_merge_back_after_leaving_the_region():

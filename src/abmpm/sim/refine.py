@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 from scipy import ndimage
 
-from .colliders import ColliderArrays, ColorField, near_surface, stop_crossing
+from .colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point, near_surface, stop_crossing
 from .footprint import FOOTPRINT_REACH
 from .grid import BLOCK, ON_COARSE, Grid, GridSpec, cell_flag
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
@@ -212,23 +212,27 @@ def cell_masses(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), mas
 
 
 @wp.kernel
-def mark_coarse_children(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32),
-                         surface_body: wp.array(dtype=wp.int32), g: GridSpec, m0: wp.array(dtype=float),
-                         m1: wp.array(dtype=float), beside: wp.array3d(dtype=wp.int32), share: float,
-                         color: ColorField, colliders: int, on_fine: wp.array(dtype=wp.int32)):
-    # (a child within the coarse band of a surface is left to the fine grid: its color, of its
-    # own finer band, would not keep its coarse stencil to its side of the surface)
+def mark_coarse_children(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), g: GridSpec,
+                         m0: wp.array(dtype=float), m1: wp.array(dtype=float), beside: wp.array3d(dtype=wp.int32),
+                         share: float, colliders: ColliderArrays, color: ColorField, cpic: int,
+                         surface_point: wp.array(dtype=wp.vec3), surface_side: wp.array(dtype=wp.vec3),
+                         surface_body: wp.array(dtype=wp.int32), on_fine: wp.array(dtype=wp.int32)):
     p = wp.tid() + first
     if level[p] != 1:
         return
     mark = int(0)
-    far = surface_body[p] < 0
-    if colliders != 0 and far:
-        far = not near_surface(color, g, x[p])
-    if far and cell_flag(g, beside, x[p]) == 0:
+    if cell_flag(g, beside, x[p]) == 0:
         c = cell_of(g, x[p])
         if m0[c] > share * (m0[c] + m1[c]):
             mark = ON_COARSE
+    # a marked child with no color of its own (its band is PARTICLE_BAND fine cells) but
+    # within the coarse band of a surface is colored on the coarse grid now, so that its
+    # first coarse transfers keep to its side (CPIC's masks, the crossing test)
+    if mark == ON_COARSE and cpic != 0 and surface_body[p] < 0 and near_surface(color, g, x[p]):
+        col = color_point(colliders, g, x[p], PARTICLE_BAND * g.dx, wp.vec3(0.0))
+        surface_point[p] = col.surface_point
+        surface_side[p] = col.surface_side
+        surface_body[p] = col.body
     on_fine[p] = mark
 
 
@@ -372,13 +376,14 @@ class Refiner:
         self.splits += n_split
         return n_split
 
-    def coarse_children(self, state: ParticleState, on_fine: wp.array, color: ColorField, colliders: bool) -> None:
+    def coarse_children(self, state: ParticleState, on_fine: wp.array, colliders: ColliderArrays, color: ColorField,
+                        cpic: bool) -> None:
         """Mark in ``on_fine`` (ON_COARSE, else 0) the level-1 particles the coarse grid moves:
-        outside the zone beside the region (``beside``), farther from every collider than the
-        coarse grid's particle band (``color``: the coarse grid's, if ``colliders``), in a coarse cell
-        whose mass is more than COARSE_SHARE level 0. Each level's J follows the grid that moves
-        it; a child among coarse particles, moved by the fine grid, is squeezed by coarse
-        material whose pressure that grid's nodes do not balance (docs/method.md)."""
+        outside the zone beside the region (``beside``), in a coarse cell whose mass is more than
+        COARSE_SHARE level 0; one with no color within the coarse grid's band of a collider
+        (``color``: the coarse grid's) is colored on that grid. Each level's J follows the grid
+        that moves it; a child among coarse particles, moved by the fine grid, is squeezed by
+        coarse material whose pressure that grid's nodes do not balance (docs/method.md)."""
         n = state.count
         if n == 0:
             return
@@ -386,9 +391,10 @@ class Refiner:
         self._cell_m[1].zero_()
         wp.launch(cell_masses, n, [state.x, state.level, state.mass, self.coarse.spec, *self._cell_m],
                   device=self.device)
-        self.launcher.launch(mark_coarse_children, n, [state.x, state.level, state.surface_body, self.coarse.spec,
-                                                       *self._cell_m, self.beside, COARSE_SHARE, color,
-                                                       int(colliders), on_fine])
+        self.launcher.launch(mark_coarse_children, n, [state.x, state.level, self.coarse.spec, *self._cell_m,
+                                                       self.beside, COARSE_SHARE, colliders, color, int(cpic),
+                                                       state.surface_point, state.surface_side, state.surface_body,
+                                                       on_fine])
 
     def activate(self, state: ParticleState, skip: int = 0) -> int:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones

@@ -267,7 +267,7 @@ class MPMSolver:
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots; the children the coarse grid moves
         if self.refiner is not None:
-            self.refiner.coarse_children(state, self._on_fine, self.grid.color, self.colliders is not None)
+            self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic)
         self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
         if self.slow is not None and not self.slow.open and self.block > 1 and self._ranges["slow"][0][1]:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
