@@ -288,12 +288,14 @@ def test_merge_after_split_conserves_mass_and_momentum(n, seed):
 
 
 def test_children_among_coarse_particles_move_with_the_coarse_grid():
-    """The mark of ``Refiner.coarse_children`` against the rule computed here from the
+    """The marks of ``Refiner.coarse_children`` against the rule computed here from the
     particles: a level-1 particle outside the zone beside the region (no collider here),
     whose coarse cell holds more level-0 than level-1 mass, moves with the coarse grid
-    (ON_COARSE); every other child with the fine grid. A refined water column collapses on to
-    a coarse layer (children and coarse particles mix), then the region is taken away."""
-    from abmpm.sim.grid import ON_COARSE
+    (ON_COARSE); every other child with the fine grid. The converse: a level-0 particle whose
+    coarse cell holds more level-1 mass is marked AMONG_FINE, and the fine pass moves it
+    (bit 1) where its footprint's blocks are active. A refined water column collapses on to a
+    coarse layer (children and coarse particles mix), then the region is taken away."""
+    from abmpm.sim.grid import AMONG_FINE, ON_COARSE
 
     scene = abmpm.Scene(
         simulation=abmpm.SimulationSettings(
@@ -307,8 +309,9 @@ def test_children_among_coarse_particles_move_with_the_coarse_grid():
     sim.advance(frames=4)
     solver, state = sim.solver, sim._state
     solver.set_region(np.zeros(solver.region.shape, dtype=bool))
-    solver.begin_segment(state, sim.time, 1e-4)  # marks the children for the segment
+    solver.begin_segment(state, sim.time, 1e-4)
     a = state.numpy()
+    solver.substep(state)  # marks each particle at its start
     mark = solver._on_fine.numpy()[:state.count]
     cell = np.clip(np.floor((a["x"] - solver.grid_origin) / solver.grid.dx).astype(int), 0,
                    np.array(solver.region.shape) - 1)
@@ -319,6 +322,12 @@ def test_children_among_coarse_particles_move_with_the_coarse_grid():
     expect = child & (m[0][flat] > 0.5 * (m[0][flat] + m[1][flat]))
     assert np.array_equal(mark[child] == ON_COARSE, expect[child])
     assert 0 < expect.sum() < child.sum()  # both kinds are there
+    among = ~child & (m[1][flat] > 0.5 * (m[0][flat] + m[1][flat]))
+    assert np.array_equal((mark[~child] & AMONG_FINE) != 0, among[~child])
+    assert 0 < among.sum() < (~child).sum()
+    moved = (mark & 1) != 0  # the fine pass moves the marked ones whose footprint is whole
+    assert not moved[~among].any()  # no collider, so no band particle beside the region
+    assert moved[among].mean() > 0.9
 
 
 def test_a_child_the_coarse_grid_moves_is_colored_on_the_coarse_grid():
@@ -344,8 +353,9 @@ def test_a_child_the_coarse_grid_moves_is_colored_on_the_coarse_grid():
     sim.advance(frames=8)  # the children reach under the sheet
     solver, state = sim.solver, sim._state
     solver.set_region(np.zeros(solver.region.shape, dtype=bool))
-    before = state.numpy()["surface_body"].copy()
     solver.begin_segment(state, sim.time, 1e-4)
+    before = state.numpy()["surface_body"].copy()
+    solver.refiner.coarse_children(state, solver._on_fine, solver.collider_arrays, solver.grid.color, solver.cpic)
     a = state.numpy()
     mark = solver._on_fine.numpy()[:state.count]
     foot = np.clip(a["x"], lo, hi)  # the closest point of the sheet

@@ -6,9 +6,10 @@ finest modes), ``g2p_sparse`` on the fine block-sparse grid. Beyond the paper, a
 level-0 particle in a collider's band whose box lies whole in active fine blocks
 (``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its box as
 the kernel (``gather_box``; docs/method.md, "Coarse particles in a collider's band
-move with the fine grid"), and keeps its own grid's band and colors. The other way
-round, a child among coarse particles away from the region (``Refiner.coarse_children``
-marks it ON_COARSE) moves with the coarse grid as a point of it. With colliders an
+move with the fine grid"), and keeps its own grid's band and colors; so does one
+whose coarse cell holds mostly level-1 mass (``Refiner.coarse_children``). The other
+way round, a child among coarse particles away from the region (marked ON_COARSE)
+moves with the coarse grid as a point of it. With colliders an
 incompatible node lends the particle's boundary velocity instead of its own
 (Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
 deformation update and the material's return mapping (Eqs. 7, 13-14), and the
@@ -177,7 +178,7 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         cmask: wp.array(dtype=wp.int32),  # compatibility masks from this step's P2G
         coarse: GridSpec,  # the coarse grid and its colors: a level-0 particle's band
         coarse_color: ColorField,
-        on_fine: wp.array(dtype=wp.int32),  # 1: a level-0 particle the fine grid moves (p2g_sparse)
+        on_fine: wp.array(dtype=wp.int32),  # which grid moves a particle (grid.moving_level)
         stiff: wp.array(dtype=float),  # each particle's stiffening, for sim/stiffness.py (length 1: not kept)
         signal: wp.array(dtype=float),  # [fastest speed, largest sound-speed stiffening]
     ):

@@ -35,9 +35,11 @@ BLOCK_NODES = BLOCK**3
 # too (its collider contact band is then a fine cell, grid_update)
 REACHED_BY_LEVEL0 = wp.constant(1)
 HOLDS_LEVEL1 = wp.constant(2)
-# the solver's per-particle on_fine marks: 1 a level-0 particle the fine grid moves (p2g_sparse),
-# ON_COARSE a level-1 particle the coarse grid moves (Refiner.coarse_children)
+# the solver's per-particle on_fine marks: bit 1 a level-0 particle the fine grid moves (p2g_sparse),
+# ON_COARSE a level-1 particle the coarse grid moves, AMONG_FINE a level-0 particle whose coarse cell
+# holds mostly level-1 mass (both Refiner.coarse_children)
 ON_COARSE = wp.constant(2)
+AMONG_FINE = wp.constant(4)
 
 
 @wp.func
@@ -46,7 +48,7 @@ def moving_level(on_fine: wp.array(dtype=wp.int32), p: int, level: int):
     marks it; an ``on_fine`` of length 1, where no fine grid exists, marks no one)."""
     if on_fine.shape[0] <= p:
         return level
-    if level == 0 and on_fine[p] == 1:
+    if level == 0 and (on_fine[p] & 1) != 0:
         return 1
     if level == 1 and on_fine[p] == ON_COARSE:
         return 0

@@ -37,6 +37,7 @@ import warp as wp
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
 from .footprint import footprint, footprint_weights, wider_than_a_cell
 from .grid import (
+    AMONG_FINE,
     BLOCK_NODES,
     HOLDS_LEVEL1,
     REACHED_BY_LEVEL0,
@@ -302,10 +303,11 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
             # band at b = 2 too, where g2p_sparse gathers it with that kernel; every other
             # level-0 particle is a point and left to the coarse grid (the mark set afresh)
             band_beside = s.surface_body[p] >= 0 and cell_flag(coarse, beside, s.x[p]) != 0
-            on_fine[p] = 0
-            if band_beside or wider_than_a_cell(g, s.volume[p]):
+            among = on_fine[p] & AMONG_FINE  # its coarse cell mostly level 1 (Refiner.coarse_children)
+            on_fine[p] = among
+            if band_beside or among != 0 or wider_than_a_cell(g, s.volume[p]):
                 whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
-                on_fine[p] = wp.where(whole and band_beside, 1, 0)
+                on_fine[p] = among | wp.where(whole and (band_beside or among != 0), 1, 0)
                 return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):

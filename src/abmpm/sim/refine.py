@@ -21,7 +21,7 @@ from scipy import ndimage
 
 from .colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point, near_surface, stop_crossing
 from .footprint import FOOTPRINT_REACH
-from .grid import BLOCK, ON_COARSE, Grid, GridSpec, cell_flag
+from .grid import AMONG_FINE, BLOCK, ON_COARSE, Grid, GridSpec, cell_flag
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
@@ -218,11 +218,12 @@ def mark_coarse_children(first: int, x: wp.array(dtype=wp.vec3), level: wp.array
                          surface_point: wp.array(dtype=wp.vec3), surface_side: wp.array(dtype=wp.vec3),
                          surface_body: wp.array(dtype=wp.int32), on_fine: wp.array(dtype=wp.int32)):
     p = wp.tid() + first
-    if level[p] != 1:
+    c = cell_of(g, x[p])
+    if level[p] == 0:  # p2g_sparse moves it with the fine grid where its footprint is active
+        on_fine[p] = wp.where(m1[c] > share * (m0[c] + m1[c]), AMONG_FINE, 0)
         return
     mark = int(0)
     if cell_flag(g, beside, x[p]) == 0:
-        c = cell_of(g, x[p])
         if m0[c] > share * (m0[c] + m1[c]):
             mark = ON_COARSE
     # a marked child with no color of its own (its band is PARTICLE_BAND fine cells) but
@@ -381,9 +382,12 @@ class Refiner:
         """Mark in ``on_fine`` (ON_COARSE, else 0) the level-1 particles the coarse grid moves:
         outside the zone beside the region (``beside``), in a coarse cell whose mass is more than
         COARSE_SHARE level 0; one with no color within the coarse grid's band of a collider
-        (``color``: the coarse grid's) is colored on that grid. Each level's J follows the grid
-        that moves it; a child among coarse particles, moved by the fine grid, is squeezed by
-        coarse material whose pressure that grid's nodes do not balance (docs/method.md)."""
+        (``color``: the coarse grid's) is colored on that grid. The other way round, a level-0
+        particle in a coarse cell whose mass is more than COARSE_SHARE level 1 is marked
+        AMONG_FINE (``p2g_sparse`` moves it with the fine grid where its footprint is active).
+        Each level's J follows the grid that moves it; a child among coarse particles, moved by
+        the fine grid, is squeezed by coarse material whose pressure that grid's nodes do not
+        balance, and the converse (docs/method.md). The first pass of every substep."""
         n = state.count
         if n == 0:
             return

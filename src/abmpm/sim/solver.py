@@ -265,9 +265,7 @@ class MPMSolver:
         if self.refiner is not None and self._steps % REFINE_EVERY == 0:
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
-        self._reserve(state)  # 3. buffers, dt, CFL signal slots; the children the coarse grid moves
-        if self.refiner is not None:
-            self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic)
+        self._reserve(state)  # 3. buffers, dt, CFL signal slots
         self.load_kernels()  # compiled once, here at the latest: never in a substep or a capture
         if self.slow is not None and not self.slow.open and self.block > 1 and self._ranges["slow"][0][1]:
             with self.launcher.section("slow set"):  # 3a. a step of the slow set begins (sim/time_levels.py)
@@ -291,6 +289,8 @@ class MPMSolver:
         them all."""
         if self._substep >= self._segment:
             raise RuntimeError("the segment is complete: call begin_segment first")
+        if self.refiner is not None:  # 3b. which grid moves each particle whose coarse cell holds both levels
+            self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic)
         self.p2g(state)  # 4. P2G (Eqs. 8-10)
         self.grid_update()  # 5. grid update (Eqs. 3-4, 22)
         self.g2p(state, self._signals.slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
