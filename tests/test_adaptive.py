@@ -287,6 +287,20 @@ def test_merge_after_split_conserves_mass_and_momentum(n, seed):
     assert np.allclose(merged["x"][order], x, atol=1e-6)
 
 
+def column_on_a_coarse_layer(colliders: list | None = None) -> abmpm.Scene:
+    """A refined water column (b = 2, a box over x < 0.2 m) beside a coarse layer 0.1 m deep,
+    which it collapses on to: children and coarse particles mix."""
+    return abmpm.Scene(
+        simulation=abmpm.SimulationSettings(
+            domain_max=(0.8, 0.4, 0.2), dx=0.05, fps=30,
+            refinement={"mode": "adaptive", "factor": 2, "boxes": [((0.0, 0.0, 0.0), (0.2, 0.4, 0.2))]}),
+        materials=[sm.Fluid(name="water")],
+        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.2, 0.3, 0.2)),
+                sm.BoxBody(material="water", min=(0.2, 0.0, 0.0), max=(0.8, 0.1, 0.2))],
+        colliders=colliders or [],
+    )
+
+
 def test_children_among_coarse_particles_move_with_the_coarse_grid():
     """The marks of ``Refiner.coarse_children`` against the rule computed here from the
     particles: a level-1 particle outside the zone beside the region (no collider here),
@@ -297,15 +311,7 @@ def test_children_among_coarse_particles_move_with_the_coarse_grid():
     coarse layer (children and coarse particles mix), then the region is taken away."""
     from abmpm.sim.grid import AMONG_FINE, ON_COARSE
 
-    scene = abmpm.Scene(
-        simulation=abmpm.SimulationSettings(
-            domain_max=(0.8, 0.4, 0.2), dx=0.05, fps=30,
-            refinement={"mode": "adaptive", "factor": 2, "boxes": [((0.0, 0.0, 0.0), (0.2, 0.4, 0.2))]}),
-        materials=[sm.Fluid(name="water")],
-        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.2, 0.3, 0.2)),
-                sm.BoxBody(material="water", min=(0.2, 0.0, 0.0), max=(0.8, 0.1, 0.2))],
-    )
-    sim = abmpm.Simulation(scene, device="cpu")
+    sim = abmpm.Simulation(column_on_a_coarse_layer(), device="cpu")
     sim.advance(frames=4)
     solver, state = sim.solver, sim._state
     solver.set_region(np.zeros(solver.region.shape, dtype=bool))
@@ -340,16 +346,8 @@ def test_a_child_the_coarse_grid_moves_is_colored_on_the_coarse_grid():
     from abmpm.sim.grid import ON_COARSE
 
     lo, hi, y_sheet = np.array([0.3, 0.2, -0.05]), np.array([0.8, 0.2, 0.25]), 0.2  # the sheet's rectangle
-    scene = abmpm.Scene(
-        simulation=abmpm.SimulationSettings(
-            domain_max=(0.8, 0.4, 0.2), dx=0.05, fps=30,
-            refinement={"mode": "adaptive", "factor": 2, "boxes": [((0.0, 0.0, 0.0), (0.2, 0.4, 0.2))]}),
-        materials=[sm.Fluid(name="water")],
-        bodies=[sm.BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.2, 0.3, 0.2)),
-                sm.BoxBody(material="water", min=(0.2, 0.0, 0.0), max=(0.8, 0.1, 0.2))],
-        colliders=[sm.SheetCollider(size=(0.5, 0.3), center=(0.55, y_sheet, 0.1), refine=False)],
-    )
-    sim = abmpm.Simulation(scene, device="cpu")
+    sim = abmpm.Simulation(column_on_a_coarse_layer(
+        [sm.SheetCollider(size=(0.5, 0.3), center=(0.55, y_sheet, 0.1), refine=False)]), device="cpu")
     sim.advance(frames=8)  # the children reach under the sheet
     solver, state = sim.solver, sim._state
     solver.set_region(np.zeros(solver.region.shape, dtype=bool))
