@@ -298,12 +298,13 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
             # by the region whatever the blocks' alignment) whose whole footprint lies in active
             # fine blocks is moved by the fine grid (g2p_sparse): its contact with the
             # collider is then the fine grid's, like the level-1 material it meets there
-            # (docs/method.md, "Coarse particles in a collider's band move with the fine grid").
-            # It is its box here where the box is wider than a fine cell (b >= 3), and in the
-            # band at b = 2 too, where g2p_sparse gathers it with that kernel; every other
-            # level-0 particle is a point and left to the coarse grid (the mark set afresh)
+            # (docs/method.md, "Coarse particles in a collider's band move with the fine grid");
+            # so is one among children (AMONG_FINE: its coarse cell holds mostly level-1 mass).
+            # It is its box here where the box is wider than a fine cell (b >= 3), and those two
+            # at b = 2 too, where g2p_sparse gathers them with that kernel; every other level-0
+            # particle is a point and left to the coarse grid (bit 1 of the mark set afresh)
             band_beside = s.surface_body[p] >= 0 and cell_flag(coarse, beside, s.x[p]) != 0
-            among = on_fine[p] & AMONG_FINE  # its coarse cell mostly level 1 (Refiner.coarse_children)
+            among = on_fine[p] & AMONG_FINE  # Refiner.coarse_children, this substep
             on_fine[p] = among
             if band_beside or among != 0 or wider_than_a_cell(g, s.volume[p]):
                 whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
