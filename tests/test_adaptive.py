@@ -307,7 +307,7 @@ def test_children_among_coarse_particles_move_with_the_coarse_grid():
     whose coarse cell holds more level-0 than level-1 mass, moves with the coarse grid
     (ON_COARSE); every other child with the fine grid. The converse: a level-0 particle whose
     coarse cell holds more level-1 mass is marked AMONG_FINE, and the fine pass moves it
-    (bit 1) where its footprint's blocks are active. A refined water column collapses on to a
+    (the mark's 1 bit) where its footprint's blocks are active. A refined water column collapses on to a
     coarse layer (children and coarse particles mix), then the region is taken away."""
     from abmpm.sim.grid import AMONG_FINE, ON_COARSE
 

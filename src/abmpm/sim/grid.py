@@ -35,7 +35,7 @@ BLOCK_NODES = BLOCK**3
 # too (its collider contact band is then a fine cell, grid_update)
 REACHED_BY_LEVEL0 = wp.constant(1)
 HOLDS_LEVEL1 = wp.constant(2)
-# the solver's per-particle on_fine marks: bit 1 a level-0 particle the fine grid moves (p2g_sparse),
+# the solver's per-particle on_fine marks (bit flags): 1 a level-0 particle the fine grid moves (p2g_sparse),
 # ON_COARSE a level-1 particle the coarse grid moves, AMONG_FINE a level-0 particle whose coarse cell
 # holds mostly level-1 mass (both Refiner.coarse_children)
 ON_COARSE = wp.constant(2)

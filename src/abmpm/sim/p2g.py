@@ -302,7 +302,7 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
             # so is one among children (AMONG_FINE: its coarse cell holds mostly level-1 mass).
             # It is its box here where the box is wider than a fine cell (b >= 3), and those two
             # at b = 2 too, where g2p_sparse gathers them with that kernel; every other level-0
-            # particle is a point and left to the coarse grid (bit 1 of the mark set afresh)
+            # particle is a point and left to the coarse grid (the mark's 1 bit set afresh)
             band_beside = s.surface_body[p] >= 0 and cell_flag(coarse, beside, s.x[p]) != 0
             among = on_fine[p] & AMONG_FINE  # Refiner.coarse_children, this substep
             on_fine[p] = among

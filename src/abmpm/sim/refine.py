@@ -193,10 +193,10 @@ def allocate_blocks(g: GridSpec, wanted: wp.array3d(dtype=wp.int32), counter: wp
     wanted[i, j, k] = 0
 
 
-# A child outside the zone beside the region, touching no collider, in a coarse cell where
-# level-0 mass is more than this share of the whole moves with the coarse grid
-# (``coarse_children``; docs/method.md, "Children among coarse particles move with the
-# coarse grid"). Half: the grid that moves most of the cell's material.
+# A child outside the zone beside the region, in a coarse cell where level-0 mass is more
+# than this share of the whole, moves with the coarse grid; a level-0 particle where level-1
+# mass is, with the fine grid (``coarse_children``; docs/method.md, "Every particle with the
+# grid that moves most of its cell"). Half: the grid that moves most of the cell's material.
 COARSE_SHARE = 0.5
 
 
