@@ -40,6 +40,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         time_steps=st.refinement.time_steps,
         stiffening=st.stiffening,
         cuda_graph=st.cuda_graph,
+        cfl=st.cfl,
     )
 
 

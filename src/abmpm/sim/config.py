@@ -35,6 +35,10 @@ class SolverConfig:
     stiffening: str = "particle"
     """The CFL signal of compressed fluid: "particle", the largest sound-speed growth of any
     particle; "node", that growth bounded by the grid's fastest mode (sim/stiffness.py)."""
+    cfl: float = 0.4
+    """The CFL number of the caller's time steps: a substep moves no particle farther than
+    cfl cells of the finest grid. Adaptive mode's refinement schedule rests on it
+    (sim/refine_schedule.py)."""
     cuda_graph: bool = False
     """Run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
     a warning on the CPU, where a replayed graph would run on one thread)."""

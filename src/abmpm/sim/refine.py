@@ -138,10 +138,10 @@ def split_particles(
         s.family[q] = parent
 
 
-# Refinement runs every REFINE_EVERY steps. In that time a particle moves less than
-# REFINE_EVERY * cfl < 2 fine cells, so a particle asks for the blocks of the nodes it
-# reaches grown by ACTIVATION_MARGIN nodes on each side, and a particle entering the
-# region is split at most a few steps late, inside the region's halo.
+# A particle asks for the blocks of the nodes it reaches grown by ACTIVATION_MARGIN nodes
+# on each side; refinement comes again before any particle can have moved that far
+# (sim/refine_schedule.py: decided at most every REFINE_EVERY steps), so a particle
+# entering the region is split at most that far inside, within the region's halo.
 REFINE_EVERY = 4
 ACTIVATION_MARGIN = wp.constant(2)
 # A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region

@@ -12,7 +12,7 @@ import numpy as np
 import warp as wp
 
 from .parallel import CACHE_LINE_WORDS, Launcher
-from .state import DYNAMIC, ParticleState
+from .state import DYNAMIC, FIELDS, ParticleState
 
 
 class Signals:
@@ -93,3 +93,19 @@ def buffer_key(count: int, arrays: list[wp.array], *sizes) -> tuple:
     """What a captured substep has baked in: the particle count, launch sizes (``sizes``)
     and every buffer's address and shape."""
     return (count, *sizes, tuple((a.ptr, a.shape) for a in arrays))
+
+
+def substep_buffers(solver, state: ParticleState) -> tuple:
+    """What a captured substep of ``solver`` (an ``MPMSolver``) has baked in: launch sizes and
+    every buffer's address (its ``Graphs`` key)."""
+    arrays = [getattr(state, name) for name in FIELDS]
+    if solver.slow is not None:
+        arrays += [solver.slow.nodes.m, solver.slow.nodes.p, solver.slow.nodes.f]
+    arrays += [solver._tau, solver._cmask, solver._on_fine, solver._occ, solver._dt, solver.signal, solver.materials,
+               solver.collider_arrays.bodies, solver.collider_arrays.face_body, *solver.stiffness.buffers()]
+    for g in solver.grids:
+        arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
+    arrays += solver.launcher.private_arrays()
+    return buffer_key(state.count, arrays, solver.slow is not None and solver.slow.open,
+                      tuple(map(tuple, solver._ranges.values())), tuple(g.node_count for g in solver.grids),
+                      int(solver.collider_arrays.mesh))

@@ -7,10 +7,10 @@ CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
 ``begin_segment(state, time, dt, substeps)``, a host point:
 
 1. move the colliders to ``time`` and rebuild their color distance field;
-2. adaptive mode, every REFINE_EVERY steps: split the level-0 particles that
-   entered the refined region (Eq. 15), move the children of surface parents onto
-   the parent-level surface (Eqs. 16-20), and give the fine grid the blocks its
-   particles need;
+2. adaptive mode, once the particles may have moved far enough (sim/refine_schedule.py):
+   split the level-0 particles that entered the refined region (Eq. 15), move the
+   children of surface parents onto the parent-level surface (Eqs. 16-20), and give the
+   fine grid the blocks its particles need;
 3. reserve every buffer the substeps use, set dt on the device, reset the CFL
    signal slots (and keep a copy of the particles if the segment may be rewound).
 
@@ -50,9 +50,10 @@ from .materials import MaterialParams, model_ids
 from .p2g import PASS_LABEL, PASS_LEVEL, p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
 from .refine import REFINE_EVERY, Refiner
-from .segments import Graphs, SegmentStart, Signals, buffer_key
+from .refine_schedule import RefineSchedule
+from .segments import Graphs, SegmentStart, Signals, substep_buffers
 from .sorting import level_ranges, sort_by_cell
-from .state import FIELDS, ParticleState
+from .state import ParticleState
 from .stiffness import StiffnessSignal
 from .time_levels import SORT_HALO, SlowSet, no_slow, p2g_slow_kernel, split_off_slow
 
@@ -123,6 +124,7 @@ class MPMSolver:
         self.block, self.choose_slow = 1, True  # the slow set's step in substeps; whether a sort chooses it
         self._kernels_loaded = False
         self._graphs = Graphs()  # captured segments (run_segment)
+        self.schedule = RefineSchedule(config.cfl, config.dx / (config.refine_factor or 1))  # when to refine
 
     def transfer_kernels(self) -> list:
         """Every transfer kernel this solver's substeps may launch. Each is compiled
@@ -225,11 +227,12 @@ class MPMSolver:
 
     @property
     def segment_length(self) -> int:
-        """The most substeps the next segment may have: up to the next refinement step (every
-        REFINE_EVERY steps); 1 while colliders move (pose and color field set on the host each substep)."""
+        """The most substeps the next segment may have: up to the next step refinement may come at
+        (``RefineSchedule.every``); 1 while colliders move (pose and color field set on the host each substep)."""
         if self.colliders is not None and not self.colliders.static:
             return 1
-        n = SEGMENT_MAX - self._steps % SEGMENT_MAX
+        every = self.schedule.every if self.refiner is not None else SEGMENT_MAX
+        n = every - self._steps % every
         cap = self.slow.segment_cap(self.block, self.slow_due) if self.slow is not None else None
         return n if cap is None else min(n, cap)  # a segment ends with the slow set's step
 
@@ -262,7 +265,7 @@ class MPMSolver:
             raise RuntimeError("the slow set's step is due: call close_slow first")
         with self.launcher.section("colliders"):
             self.move_colliders(time)  # 1. colliders to t, color field
-        if self.refiner is not None and self._steps % REFINE_EVERY == 0:
+        if self.refiner is not None and self.schedule.refine_now(self._steps, self.finest_active_dx):
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
@@ -308,7 +311,7 @@ class MPMSolver:
                 self.substep(state)
             return
         key = (self._substep, n)
-        graph = self._graphs.find(self._graph_buffer_key(state), key)
+        graph = self._graphs.find(substep_buffers(self, state), key)
         if graph is None:
             graph = self._capture(state, key)  # records, does not run
         else:
@@ -324,6 +327,7 @@ class MPMSolver:
         a = self._signals.read(self._substep)
         if self.slow is not None:  # the fast particles moved this far at most
             self.slow.drift += self._dt_host * float(a[:, 0].sum())
+        self.schedule.moved(self._dt_host, a[:, 0])  # and this far since the last refinement
         return a
 
     def rewind(self, state: ParticleState, substeps: int) -> None:
@@ -339,6 +343,7 @@ class MPMSolver:
         self._segment, self._substep, self._steps = substeps, 0, self._segment_start
         for _ in range(substeps):
             self.substep(state)
+        self.schedule.rewound(self._dt_host, self._signals.read(substeps)[:, 0])  # the drift of those kept
 
     def _reserve(self, state: ParticleState) -> None:
         # every buffer a substep touches, at the size it needs now
@@ -358,20 +363,6 @@ class MPMSolver:
     def _find_level_ranges(self, state: ParticleState) -> None:  # self._ranges (__init__)
         ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
         self._ranges = split_off_slow(ranges, self.slow_count if self.block > 1 else 0)
-
-    def _graph_buffer_key(self, state: ParticleState) -> tuple:
-        # what a captured substep has baked in: launch sizes and every buffer's address
-        arrays = [getattr(state, name) for name in FIELDS]
-        if self.slow is not None:
-            arrays += [self.slow.nodes.m, self.slow.nodes.p, self.slow.nodes.f]
-        arrays += [self._tau, self._cmask, self._on_fine, self._occ, self._dt, self.signal, self.materials,
-                   self.collider_arrays.bodies, self.collider_arrays.face_body, *self.stiffness.buffers()]
-        for g in self.grids:
-            arrays += [g.mv, g.m, g.v, g.color.dist, g.color.dir, g.color.body, g.spec.blocks, g.spec.slot_block]
-        arrays += self.launcher.private_arrays()
-        return buffer_key(state.count, arrays, self.slow is not None and self.slow.open,
-                          tuple(map(tuple, self._ranges.values())), tuple(g.node_count for g in self.grids),
-                          int(self.collider_arrays.mesh))
 
     def _capture(self, state: ParticleState, key: tuple):
         first, steps = self._substep, self._steps
@@ -436,14 +427,19 @@ class MPMSolver:
         self.slow_count = 0  # every particle fast until the next sort
         if self.refiner is not None:
             self._after_activation(self.refiner.activate(state))
+            self.schedule.due = True
         if recolor:  # a checkpoint keeps the colors its run gave it
             self.color_particles(state)
         if self.slow is not None:  # the slow set is chosen again (as the sort at a frame end does)
             self.sort_by_cell(state)
 
     def reset_step_count(self, steps: int) -> None:
-        """Steps taken so far (refinement runs every REFINE_EVERY steps), for resuming."""
+        """Steps taken so far (refinement's decision points lie at multiples of ``every``), for resuming."""
         self._steps = steps
+
+    def frame_ended(self) -> None:
+        """Refine at the next segment (a resumed run starts there too: sim/refine_schedule.py)."""
+        self.schedule.due = True
 
     # ------------------------------------------------------------------ colliders
 
@@ -463,6 +459,7 @@ class MPMSolver:
         """Refined coarse cells (adaptive mode)."""
         self.refiner.set_region(cells)
         self._after_activation(0)
+        self.schedule.due = True
         if state is not None:
             self.refine(state)
 
