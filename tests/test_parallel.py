@@ -248,5 +248,6 @@ def test_warp_debug_build_is_not_reentrant(tmp_path):
 
     assert rc("release", 2) == 0
     assert rc("debug", 1) == 0
-    # SIGSEGV (-11) on Warp 1.19, 12 times in 12; a crash is a race, so up to three tries
-    assert any(rc("debug", 2) != 0 for _ in range(3))
+    # SIGSEGV (-11) on Warp 1.19, 12 times in 12; a crash is a race, so up to six tries (three
+    # tries in a row without one were seen once, on 2026-11-28, in a full suite on 2 busy cores)
+    assert any(rc("debug", 2) != 0 for _ in range(6))
