@@ -10,9 +10,9 @@ most that far inside. So the schedule counts distance, not steps:
 * the drift: the sum over the substeps since the last refinement of dt times the
   fastest particle's speed (the CFL signal each substep reports), which no particle's
   motion exceeds;
-* a refinement is decided at decision points ``every`` steps apart (every step a
-  multiple of it, so that a run whose segments are captured graphs decides at the same
-  steps as one that runs substep by substep): it is skipped while the drift plus
+* a refinement is decided at the steps that are multiples of ``every`` (so that a run
+  whose segments are captured graphs decides at the same steps as one that runs substep
+  by substep): it is skipped while the drift plus
   ``every`` substeps at the CFL bound (a particle moves at most cfl fine cells a substep:
   the time step's own limit) stays within the margin, which keeps every particle
   covered until the next decision point;
@@ -22,9 +22,9 @@ most that far inside. So the schedule counts distance, not steps:
   region changes.
 
 Where the particles move at the CFL bound this refines every ``every`` steps, as a fixed
-schedule did; where they move slower than the waves in them (most of a fluid's life)
-the drift grows by a fraction of a cell a step and refinement comes several times less
-often.
+schedule did; where they move slower than the waves in them the drift grows by a fraction
+of a cell a step and refinement comes less often (17-51% fewer refinements on the scenes
+of docs/benchmarks.md, "Refinement when the particles need it").
 """
 
 from __future__ import annotations
