@@ -154,8 +154,7 @@ def test_profile_times_every_transfer_by_phase(monkeypatch):
     # one launch per level's range (the coarse G2P's level-1 one for the children it moves)
     for name in ("P2G fine", "G2P fine", "G2P coarse"):
         assert prof.launches[("substep", name)] == 2 * steps, name
-    # refinement as often as the particles' drift needs (tests/test_refine_schedule.py): at least once a frame
-    assert prof.launches[("refinement", "(all)")] >= 1 and prof.launches[("frame end", "(all)")] == 1
+    assert prof.launches[("refinement", "(all)")] >= steps // 4 and prof.launches[("frame end", "(all)")] == 1
     rows = profile_rows(prof, steps, wall)
     # each CPU part of a launch is timed on its own: the rows say how evenly the threads shared it
     assert {k[2] for k in prof.parts if k[:2] == ("substep", "G2P fine")} == {0, 1}

@@ -318,7 +318,6 @@ class Simulation:
         dt = self.dt  # the frame's last step (the diagnostics'), before the next frame's is chosen
         self._choose_dt(self._signal)  # the step's signal was checked in step()
         changed = False  # the particles since snap
-        self.solver.frame_ended()  # refinement at the next segment (a resumed run begins there)
         if self.mode == "adaptive" and any(c.refine and not c.motion.is_static for c in self.scene.colliders):
             self.solver.set_region(self.refinement_cells())  # the region follows moving colliders (per frame)
         if self.mode == "adaptive" and self.scene.simulation.refinement.merge:

@@ -37,8 +37,8 @@ class SolverConfig:
     particle; "node", that growth bounded by the grid's fastest mode (sim/stiffness.py)."""
     cfl: float = 0.4
     """The CFL number of the caller's time steps: a substep moves no particle farther than
-    cfl cells of the finest grid. Adaptive mode's refinement schedule rests on it
-    (sim/refine_schedule.py)."""
+    cfl cells of the finest grid. Adaptive mode refines often enough for it
+    (``refine.refine_every``)."""
     cuda_graph: bool = False
     """Run the substeps of a segment as one captured CUDA graph (CUDA only: ignored with
     a warning on the CPU, where a replayed graph would run on one thread)."""

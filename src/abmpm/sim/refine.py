@@ -139,11 +139,19 @@ def split_particles(
 
 
 # A particle asks for the blocks of the nodes it reaches grown by ACTIVATION_MARGIN nodes
-# on each side; refinement comes again before any particle can have moved that far
-# (sim/refine_schedule.py: decided at most every REFINE_EVERY steps), so a particle
-# entering the region is split at most that far inside, within the region's halo.
+# on each side, and refinement runs again before any particle can have moved that far:
+# every REFINE_EVERY steps, fewer where the CFL number lets REFINE_EVERY substeps move a
+# particle farther (``refine_every``). A particle entering the region is split at most a
+# few steps late, inside the region's halo.
 REFINE_EVERY = 4
 ACTIVATION_MARGIN = wp.constant(2)
+
+
+def refine_every(cfl: float) -> int:
+    """Steps between two refinements: at most REFINE_EVERY, and at most ACTIVATION_MARGIN /
+    cfl (a substep moves a particle at most cfl fine cells, the time step's own limit), so
+    that no level-1 particle outruns the margin of its blocks (docs/method.md, "Two levels")."""
+    return max(1, min(REFINE_EVERY, int(int(ACTIVATION_MARGIN) / cfl + 1e-9)))
 # A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region
 # (a cube around its cells) is moved by the fine grid (p2g_sparse; docs/method.md, "Where
 # the fine grid moves coarse particles") and asks for the blocks of its footprint; until

@@ -7,10 +7,10 @@ CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
 ``begin_segment(state, time, dt, substeps)``, a host point:
 
 1. move the colliders to ``time`` and rebuild their color distance field;
-2. adaptive mode, once the particles may have moved far enough (sim/refine_schedule.py):
-   split the level-0 particles that entered the refined region (Eq. 15), move the
-   children of surface parents onto the parent-level surface (Eqs. 16-20), and give the
-   fine grid the blocks its particles need;
+2. adaptive mode, every ``refine_every(cfl)`` steps (4, fewer at a cfl above 0.5): split the
+   level-0 particles that entered the refined region (Eq. 15), move the children of
+   surface parents onto the parent-level surface (Eqs. 16-20), and give the fine grid
+   the blocks its particles need;
 3. reserve every buffer the substeps use, set dt on the device, reset the CFL
    signal slots (and keep a copy of the particles if the segment may be rewound).
 
@@ -49,8 +49,7 @@ from .grid_update import grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import PASS_LABEL, PASS_LEVEL, p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
-from .refine import REFINE_EVERY, Refiner
-from .refine_schedule import RefineSchedule
+from .refine import REFINE_EVERY, Refiner, refine_every
 from .segments import Graphs, SegmentStart, Signals, substep_buffers
 from .sorting import level_ranges, sort_by_cell
 from .state import ParticleState
@@ -124,7 +123,7 @@ class MPMSolver:
         self.block, self.choose_slow = 1, True  # the slow set's step in substeps; whether a sort chooses it
         self._kernels_loaded = False
         self._graphs = Graphs()  # captured segments (run_segment)
-        self.schedule = RefineSchedule(config.cfl, config.dx / (config.refine_factor or 1))  # when to refine
+        self.refine_every = refine_every(config.cfl)  # steps between two refinements (adaptive mode)
 
     def transfer_kernels(self) -> list:
         """Every transfer kernel this solver's substeps may launch. Each is compiled
@@ -227,11 +226,11 @@ class MPMSolver:
 
     @property
     def segment_length(self) -> int:
-        """The most substeps the next segment may have: up to the next step refinement may come at
-        (``RefineSchedule.every``); 1 while colliders move (pose and color field set on the host each substep)."""
+        """The most substeps the next segment may have: up to the next refinement step (every
+        ``refine_every`` steps); 1 while colliders move (pose and color field set on the host each substep)."""
         if self.colliders is not None and not self.colliders.static:
             return 1
-        every = self.schedule.every if self.refiner is not None else SEGMENT_MAX
+        every = self.refine_every if self.refiner is not None else SEGMENT_MAX
         n = every - self._steps % every
         cap = self.slow.segment_cap(self.block, self.slow_due) if self.slow is not None else None
         return n if cap is None else min(n, cap)  # a segment ends with the slow set's step
@@ -265,7 +264,7 @@ class MPMSolver:
             raise RuntimeError("the slow set's step is due: call close_slow first")
         with self.launcher.section("colliders"):
             self.move_colliders(time)  # 1. colliders to t, color field
-        if self.refiner is not None and self.schedule.refine_now(self._steps, self.finest_active_dx):
+        if self.refiner is not None and self._steps % self.refine_every == 0:
             with self.launcher.section("refinement"):
                 self.refine(state)  # 2. split (Eq. 15), fine blocks
         self._reserve(state)  # 3. buffers, dt, CFL signal slots
@@ -327,7 +326,6 @@ class MPMSolver:
         a = self._signals.read(self._substep)
         if self.slow is not None:  # the fast particles moved this far at most
             self.slow.drift += self._dt_host * float(a[:, 0].sum())
-        self.schedule.moved(self._dt_host, a[:, 0])  # and this far since the last refinement
         return a
 
     def rewind(self, state: ParticleState, substeps: int) -> None:
@@ -343,7 +341,6 @@ class MPMSolver:
         self._segment, self._substep, self._steps = substeps, 0, self._segment_start
         for _ in range(substeps):
             self.substep(state)
-        self.schedule.rewound(self._dt_host, self._signals.read(substeps)[:, 0])  # the drift of those kept
 
     def _reserve(self, state: ParticleState) -> None:
         # every buffer a substep touches, at the size it needs now
@@ -427,19 +424,14 @@ class MPMSolver:
         self.slow_count = 0  # every particle fast until the next sort
         if self.refiner is not None:
             self._after_activation(self.refiner.activate(state))
-            self.schedule.due = True
         if recolor:  # a checkpoint keeps the colors its run gave it
             self.color_particles(state)
         if self.slow is not None:  # the slow set is chosen again (as the sort at a frame end does)
             self.sort_by_cell(state)
 
     def reset_step_count(self, steps: int) -> None:
-        """Steps taken so far (refinement's decision points lie at multiples of ``every``), for resuming."""
+        """Steps taken so far (refinement runs every ``refine_every`` steps), for resuming."""
         self._steps = steps
-
-    def frame_ended(self) -> None:
-        """Refine at the next segment (a resumed run starts there too: sim/refine_schedule.py)."""
-        self.schedule.due = True
 
     # ------------------------------------------------------------------ colliders
 
@@ -459,7 +451,6 @@ class MPMSolver:
         """Refined coarse cells (adaptive mode)."""
         self.refiner.set_region(cells)
         self._after_activation(0)
-        self.schedule.due = True
         if state is not None:
             self.refine(state)
 
