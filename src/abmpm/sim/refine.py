@@ -152,6 +152,8 @@ def refine_every(cfl: float) -> int:
     cfl (a substep moves a particle at most cfl fine cells, the time step's own limit), so
     that no level-1 particle outruns the margin of its blocks (docs/method.md, "Two levels")."""
     return max(1, min(REFINE_EVERY, int(int(ACTIVATION_MARGIN) / cfl + 1e-9)))
+
+
 # A level-0 particle in a collider's band within BESIDE_CELLS coarse cells of the region
 # (a cube around its cells) is moved by the fine grid (p2g_sparse; docs/method.md, "Where
 # the fine grid moves coarse particles") and asks for the blocks of its footprint; until
