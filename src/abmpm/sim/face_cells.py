@@ -16,7 +16,11 @@ cell, computed once:
   |o - t| <= min(dmin + 2r, band + r), sorted by |o - t|.
 * A query scans its cell's list and stops at the first triangle with |o - t| - |x - o|
   at least the best distance so far (no later one can be closer: |x - t| >= |o - t| -
-  |x - o|).
+  |x - o|). On the way it passes over a triangle whose disc (the circle around it in
+  its plane, centred on its centroid) lies at least the best distance from x: with h
+  x's height over the plane and r its distance from the disc within the plane,
+  |x - t|^2 >= h^2 + r^2. Four loads and a dot product instead of the triangle's
+  corners and its closest point: the paper hourglass's queries 1.6-2.5x cheaper.
 
 So the answer is the BVH's, exactly (the same closest distance; measured to 1e-5 cells
 on every query of the paper hourglass), at 0.3 of its cost there for a coarse
@@ -45,6 +49,11 @@ BAND_SLACK = 1.0e-4  # relative: the lists answer bounds this much above the ban
 CELL_RANGE = 256  # cells worth a thread of their own when building (a query and a box search each)
 SAMPLE_CELLS = 4096  # cells counted first, evenly spread, to tell whether the lists would pay
 NO_LIST = wp.constant(-2)  # closest_face: the point's cell has no list (ask the BVH)
+# of the best distance, and of a list cell's edge: a triangle is passed over when x's distance
+# to the disc around it exceeds the best so far by this much (float32 round-off of the bound)
+DISC_SLACK = 1.0e-4
+# twice a triangle's area over its longest edge squared below which it has no plane of its own
+FLAT_AREA = 1.0e-6
 
 
 @wp.struct
@@ -63,6 +72,8 @@ class FaceCells:
     start: wp.array(dtype=wp.int32)  # list cell slot -> its first entry (start[slot + 1]: its end)
     face: wp.array(dtype=wp.int32)  # entries: a triangle ...
     near: wp.array(dtype=float)  # ... and its distance from the cell's centre, ascending per cell
+    disc: wp.array(dtype=wp.vec4)  # per triangle: the centre and radius of a circle around it in its plane
+    normal: wp.array(dtype=wp.vec3)  # per triangle: its unit normal
 
 
 @wp.func(inline=True)
@@ -145,14 +156,27 @@ def closest_face(fc: FaceCells, mesh: wp.uint64, x: wp.vec3, bound: float):
         if fc.near[t] - lim >= best:
             break  # sorted: no later triangle comes closer to x
         f = fc.face[t]
-        a, b, c = face_corners(mesh, f)
-        q = closest_on_triangle(x, a, b, c)
-        d = wp.length(q - x)
-        if d < best:
-            best = d
-            hit = f
-            point = q
+        if not beyond_disc(fc, f, x, best):
+            a, b, c = face_corners(mesh, f)
+            q = closest_on_triangle(x, a, b, c)
+            d = wp.length(q - x)
+            if d < best:
+                best = d
+                hit = f
+                point = q
     return hit, point
+
+
+@wp.func(inline=True)
+def beyond_disc(fc: FaceCells, f: int, x: wp.vec3, best: float):
+    """Whether x's distance to the disc around triangle f, in f's plane, (a lower bound of
+    its distance to f) reaches ``best``, beyond the slack of float32 round-off."""
+    disc = fc.disc[f]
+    w = x - wp.vec3(disc[0], disc[1], disc[2])
+    h = wp.dot(w, fc.normal[f])
+    r = wp.max(wp.sqrt(wp.max(wp.dot(w, w) - h * h, 0.0)) - disc[3], 0.0)
+    lim = best * (1.0 + DISC_SLACK) + DISC_SLACK * fc.h
+    return h * h + r * r >= lim * lim
 
 
 @wp.func(inline=True)
@@ -238,6 +262,8 @@ def no_face_cells(device) -> FaceCells:
     for name in ("first", "start", "face"):
         setattr(fc, name, wp.zeros(1, dtype=wp.int32, device=device))
     fc.near = wp.zeros(1, dtype=float, device=device)
+    fc.disc = wp.zeros(1, dtype=wp.vec4, device=device)
+    fc.normal = wp.zeros(1, dtype=wp.vec3, device=device)
     return fc
 
 
@@ -299,5 +325,24 @@ def build_face_cells(mesh: wp.Mesh, origin, dx: float, cells, band: float, launc
     fc.face = wp.zeros(int(start[-1]), dtype=wp.int32, device=device)
     fc.near = wp.zeros(int(start[-1]), dtype=float, device=device)
     launcher.launch(fill_cell_faces, slots, [mesh.id, fc, coarse], label="face cells", min_range=CELL_RANGE)
+    disc, normal = face_discs(points, mesh.indices.numpy())
+    fc.disc = wp.array(disc, dtype=wp.vec4, device=device)
+    fc.normal = wp.array(normal, dtype=wp.vec3, device=device)
     fc.enabled = 1
     return fc
+
+
+def face_discs(points: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per triangle: its centroid and the radius of the circle around it there (x, y, z, r),
+    and its unit normal (zero for a degenerate triangle, whose disc is then a ball)."""
+    tri = points[indices.reshape(-1, 3)].astype(np.float64)
+    centre = tri.mean(axis=1)
+    radius = np.linalg.norm(tri - centre[:, None, :], axis=2).max(axis=1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    # a (nearly) collinear triangle's cross product is round-off pointing anywhere, and its
+    # corners need not lie in that plane: it keeps the ball around it
+    edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > FLAT_AREA * edge**2)
+    disc = np.concatenate([centre, radius[:, None]], axis=1)
+    return disc.astype(np.float32), normal.astype(np.float32)
