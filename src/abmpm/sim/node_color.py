@@ -100,13 +100,20 @@ def color_from_faces(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
     c.body = NEEDS_QUERY
     step = g.dx * wp.normalize(side)
     lb = float(FAR_BOUND)
+    nodes = wp.vec3i(-1)
+    for k in range(3):
+        n, b = node_ball(f, g, x, nearest_node_coords(g, x + float(k) * step))
+        lb = wp.max(lb, b)
+        nodes[k] = n
+    # the cheap conditions first: a stencil that a surface cuts (the most common refusal
+    # near a curved glass) then costs no triangle (one return: an early one made G2P slower)
+    ok = lb >= NODE_COLOR_MIN * g.dx and stencil_facing(f, g, x)
     best = int(-1)
     best_d = float(PARTICLE_BAND) * g.dx
     best_x = wp.vec3(0.0)
     for k in range(3):
-        n, b = node_ball(f, g, x, nearest_node_coords(g, x + float(k) * step))
-        lb = wp.max(lb, b)
-        if n >= 0:
+        n = nodes[k]
+        if ok and n >= 0:
             if f.face[n] >= 0:
                 # a point of the surface: its distance bounds x's from above
                 q = face_point(colliders, f.face[n], x)
@@ -118,9 +125,8 @@ def color_from_faces(f: ColorField, g: GridSpec, colliders: ColliderArrays, x: w
     # within the tolerance of the balls' lower bound it is x's closest point or off by at
     # most the tolerance; unless a rim is within 2 best_d of that face (x's closest point
     # may then lie on the rim, |rim - x| <= best_d, where x's side is not the face's: a
-    # hole, a slit), and only where CPIC's test cannot tell the difference (stencil_facing)
-    if best >= 0 and lb >= NODE_COLOR_MIN * g.dx and best_d - lb <= NODE_COLOR_TOL * g.dx \
-            and colliders.face_clear[best] > 2.0 * best_d and stencil_facing(f, g, x):
+    # hole, a slit); and only where CPIC's test cannot tell the difference (stencil_facing)
+    if best >= 0 and best_d - lb <= NODE_COLOR_TOL * g.dx and colliders.face_clear[best] > 2.0 * best_d:
         c.surface_point = best_x
         c.surface_side = (x - best_x) / best_d
         c.body = colliders.face_body[best]
@@ -176,10 +182,7 @@ def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, reme
                 plane_x = node_position(g, node)
     if lb >= PARTICLE_BAND * g.dx:
         c.body = -1
-        return c
-    if lb < NODE_COLOR_MIN * g.dx:
-        return c
-    if plane >= 0 and flat == 1 and wp.length(hi - lo) <= NODE_COLOR_SPREAD:
+    elif lb >= NODE_COLOR_MIN * g.dx and plane >= 0 and flat == 1 and wp.length(hi - lo) <= NODE_COLOR_SPREAD:
         nrm = f.dir[plane]
         foot = plane_x - f.dist[plane] * nrm
         d = wp.dot(x - foot, nrm)
