@@ -121,13 +121,14 @@ def behind_node(f: ColorField, n: int, xi: wp.vec3, xp: wp.vec3):
 @wp.func(inline=True)
 def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, xp: wp.vec3, f: ColorField, xi: wp.vec3, n: int, dx: float):
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
-    if surface_body < 0 or n < 0:
-        return True  # particle far from every surface, or an inactive node
-    if f.body[n] < 0:
-        return True  # node far from every surface
-    if f.dist[n] < ON_NODE * dx:
-        return False  # a node on a surface belongs to neither side
-    return not (wp.dot(xi - surface_point, surface_side) < 0.0 and behind_node(f, n, xi, xp))
+    ok = True  # particle far from every surface, or an inactive node
+    if surface_body >= 0 and n >= 0:
+        if f.body[n] >= 0:  # else the node is far from every surface
+            if f.dist[n] < ON_NODE * dx:
+                ok = False  # a node on a surface belongs to neither side
+            else:
+                ok = not (wp.dot(xi - surface_point, surface_side) < 0.0 and behind_node(f, n, xi, xp))
+    return ok
 
 
 ALL_NODES = wp.constant(0x7FFFFFF)  # 27 bits: every node of the 3x3x3 stencil
@@ -140,15 +141,16 @@ def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_bo
     # Every stencil node lies within 1.5 dx |n|_1 of x_p along n, so a particle farther
     # than that from its tangent plane has no node behind it: all compatible (exact).
     reach = 1.5 * g.dx * (wp.abs(surface_side[0]) + wp.abs(surface_side[1]) + wp.abs(surface_side[2]))
-    if wp.dot(xp - surface_point, surface_side) > reach + 1.0e-3 * g.dx:
-        return ALL_NODES
-    mask = int(0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                if compatible(surface_point, surface_side, surface_body, xp, f, xi, node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
-                    mask = mask | (1 << (9 * i + 3 * j + k))
+    mask = int(ALL_NODES)
+    if not (wp.dot(xp - surface_point, surface_side) > reach + 1.0e-3 * g.dx):
+        mask = 0
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
+                    if compatible(surface_point, surface_side, surface_body, xp, f, xi,
+                                  node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
+                        mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
 
@@ -219,11 +221,11 @@ def near_surface(f: ColorField, g: GridSpec, x: wp.vec3):
     # the shell between PARTICLE_BAND and NODE_BAND + half a cell diagonal.
     c = nearest_node_coords(g, x)
     n = node_index(g, c[0], c[1], c[2])
-    if n < 0:
-        return False
-    if f.body[n] < 0:
-        return False
-    return f.dist[n] - wp.length(x - node_position(g, c)) <= PARTICLE_BAND * g.dx
+    near = False
+    if n >= 0:
+        if f.body[n] >= 0:
+            near = f.dist[n] - wp.length(x - node_position(g, c)) <= PARTICLE_BAND * g.dx
+    return near
 
 
 @wp.func

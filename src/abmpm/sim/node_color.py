@@ -63,9 +63,10 @@ def node_ball(f: ColorField, g: GridSpec, x: wp.vec3, c: wp.vec3i):
     every surface (D_c is exact within the band, and at least NODE_BAND cells outside
     it). FAR_BOUND for an inactive node of a sparse grid."""
     n = node_index(g, c[0], c[1], c[2])
-    if n < 0:
-        return n, FAR_BOUND
-    return n, wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
+    b = float(FAR_BOUND)
+    if n >= 0:
+        b = wp.min(f.dist[n], NODE_BAND * g.dx) - wp.length(x - node_position(g, c))
+    return n, b
 
 
 @wp.func(inline=True)
