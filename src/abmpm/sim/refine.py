@@ -211,10 +211,10 @@ COARSE_SHARE = 0.5
 
 
 @wp.kernel
-def cell_masses(x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
+def cell_masses(first: int, x: wp.array(dtype=wp.vec3), level: wp.array(dtype=wp.int32), mass: wp.array(dtype=float),
                 g: GridSpec, m0: wp.array(dtype=float), m1: wp.array(dtype=float)):
     # each level's mass per coarse cell (one CPU thread: Warp's CPU atomics are plain adds)
-    p = wp.tid()
+    p = wp.tid() + first
     if level[p] == 0:
         wp.atomic_add(m0, cell_of(g, x[p]), mass[p])
     else:
@@ -388,7 +388,7 @@ class Refiner:
         return n_split
 
     def coarse_children(self, state: ParticleState, on_fine: wp.array, colliders: ColliderArrays, color: ColorField,
-                        cpic: bool) -> None:
+                        cpic: bool, skip: int = 0) -> None:
         """Mark in ``on_fine`` (ON_COARSE, else 0) the level-1 particles the coarse grid moves:
         outside the zone beside the region (``beside``), in a coarse cell whose mass is more than
         COARSE_SHARE level 0; one with no color within the coarse grid's band of a collider
@@ -397,18 +397,21 @@ class Refiner:
         AMONG_FINE (``p2g_sparse`` moves it with the fine grid where its footprint is active).
         Each level's J follows the grid that moves it; a child among coarse particles, moved by
         the fine grid, is squeezed by coarse material whose pressure that grid's nodes do not
-        balance, and the converse (docs/method.md). The first pass of every substep."""
-        n = state.count
-        if n == 0:
+        balance, and the converse (docs/method.md). The first pass of every substep. The first
+        ``skip`` particles (the slow set while its step is open) are left out: they lie at least
+        GUARD_HALO coarse cells from every level-1 particle, so no cell they share holds level-1
+        mass, and no pass of their step reads their marks."""
+        n = state.count - skip
+        if n <= 0:
             return
         self._cell_m[0].zero_()
         self._cell_m[1].zero_()
-        wp.launch(cell_masses, n, [state.x, state.level, state.mass, self.coarse.spec, *self._cell_m],
+        wp.launch(cell_masses, n, [skip, state.x, state.level, state.mass, self.coarse.spec, *self._cell_m],
                   device=self.device)
         self.launcher.launch(mark_coarse_children, n, [state.x, state.level, self.coarse.spec, *self._cell_m,
                                                        self.beside, COARSE_SHARE, colliders, color, int(cpic),
                                                        state.surface_point, state.surface_side, state.surface_body,
-                                                       on_fine])
+                                                       on_fine], start=skip)
 
     def activate(self, state: ParticleState, skip: int = 0) -> int:
         """Give fine-grid blocks to level-1 particles that reach beyond the active ones

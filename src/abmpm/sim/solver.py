@@ -292,7 +292,8 @@ class MPMSolver:
         if self._substep >= self._segment:
             raise RuntimeError("the segment is complete: call begin_segment first")
         if self.refiner is not None:  # 3b. which grid moves each particle whose coarse cell holds both levels
-            self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic)
+            self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic,
+                                         skip=self._ranges["slow"][0][1])
         self.p2g(state)  # 4. P2G (Eqs. 8-10)
         self.grid_update()  # 5. grid update (Eqs. 3-4, 22)
         self.g2p(state, self._signals.slots[self._substep])  # 6. G2P (Eqs. 11-14, 23-25), CFL signal
