@@ -153,3 +153,22 @@ def test_colors_on_curved_glass_are_within_the_tolerance_of_the_bvh_s():
     wp.launch(compare_masks, count, [xs, ns, arrays, grid.spec, grid.color, taken, same])
     taken = taken.numpy() >= 0
     assert taken.sum() > 1000 and same.numpy()[taken].all()
+
+
+def test_a_node_far_from_every_surface_reads_far():
+    # compatibility_mask refuses a node in front of the particle's tangent plane only when
+    # it lies on a surface, and reads that off its distance alone: a node with no body must
+    # carry FAR, never a distance under ON_NODE cells (colliders.color_node, color_field)
+    from abmpm.scene.loader import load_scene
+    from abmpm.sim.colliders import FAR, ON_NODE
+
+    sim = Simulation(load_scene("hourglass"), device="cpu", mode="adaptive")
+    sim.step()
+    for grid in sim.solver.grids:
+        n = grid.node_count
+        body, dist = grid.color.body.numpy()[:n], grid.color.dist.numpy()[:n]
+        assert (body >= 0).any() and (body < 0).any()
+        assert np.all(dist[body < 0] == np.float32(FAR))
+        assert np.all(dist[body >= 0] < np.float32(FAR))
+        # so a node closer than ON_NODE cells to a surface always has its body
+        assert np.all((dist < ON_NODE * grid.dx) <= (body >= 0))

@@ -148,8 +148,15 @@ def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_bo
             for j in range(3):
                 for k in range(3):
                     xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                    if compatible(surface_point, surface_side, surface_body, xp, f, xi,
-                                  node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
+                    n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
+                    ok = True
+                    if n >= 0:
+                        if wp.dot(xi - surface_point, surface_side) < 0.0:  # behind the particle's plane
+                            ok = compatible(surface_point, surface_side, surface_body, xp, f, xi, n, g.dx)
+                        else:  # in front: refused only on a surface, read off the distance alone (a
+                            # node with no body carries FAR: tests/test_node_color.py), one load not two
+                            ok = not (f.dist[n] < ON_NODE * g.dx)
+                    if ok:
                         mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
