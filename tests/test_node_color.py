@@ -156,9 +156,9 @@ def test_colors_on_curved_glass_are_within_the_tolerance_of_the_bvh_s():
 
 
 def test_a_node_far_from_every_surface_reads_far():
-    # compatibility_mask refuses a node in front of the particle's tangent plane only when
-    # it lies on a surface, and reads that off its distance alone: a node with no body must
-    # carry FAR, never a distance under ON_NODE cells (colliders.color_node, color_field)
+    # colliders.compatible reads a node's distance and direction without its body: a node
+    # with no body must carry FAR, never a distance under ON_NODE cells, and no direction
+    # (colliders.color_node, color_field)
     from abmpm.scene.loader import load_scene
     from abmpm.sim.colliders import FAR, ON_NODE
 
@@ -169,6 +169,7 @@ def test_a_node_far_from_every_surface_reads_far():
         body, dist = grid.color.body.numpy()[:n], grid.color.dist.numpy()[:n]
         assert (body >= 0).any() and (body < 0).any()
         assert np.all(dist[body < 0] == np.float32(FAR))
+        assert np.all(grid.color.dir.numpy()[:n][body < 0] == 0.0)
         assert np.all(dist[body >= 0] < np.float32(FAR))
         # so a node closer than ON_NODE cells to a surface always has its body
         assert np.all((dist < ON_NODE * grid.dx) <= (body >= 0))

@@ -123,11 +123,13 @@ def compatible(surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int,
     """May particle p exchange momentum with node n at xi? (see module docstring)"""
     ok = True  # particle far from every surface, or an inactive node
     if surface_body >= 0 and n >= 0:
-        if f.body[n] >= 0:  # else the node is far from every surface
-            if f.dist[n] < ON_NODE * dx:
-                ok = False  # a node on a surface belongs to neither side
-            else:
-                ok = not (wp.dot(xi - surface_point, surface_side) < 0.0 and behind_node(f, n, xi, xp))
+        # A node far from every surface carries FAR and no direction (color_node,
+        # tests/test_node_color.py), so it passes both tests without a look at its body: a
+        # node in front of the particle's tangent plane costs one load
+        if f.dist[n] < ON_NODE * dx:
+            ok = False  # a node on a surface belongs to neither side
+        elif wp.dot(xi - surface_point, surface_side) < 0.0:
+            ok = not behind_node(f, n, xi, xp)
     return ok
 
 
@@ -148,15 +150,8 @@ def compatibility_mask(surface_point: wp.vec3, surface_side: wp.vec3, surface_bo
             for j in range(3):
                 for k in range(3):
                     xi = xp + (wp.vec3(float(i), float(j), float(k)) - fx) * g.dx
-                    n = node_index(g, base[0] + i, base[1] + j, base[2] + k)
-                    ok = True
-                    if n >= 0:
-                        if wp.dot(xi - surface_point, surface_side) < 0.0:  # behind the particle's plane
-                            ok = compatible(surface_point, surface_side, surface_body, xp, f, xi, n, g.dx)
-                        else:  # in front: refused only on a surface, read off the distance alone (a
-                            # node with no body carries FAR: tests/test_node_color.py), one load not two
-                            ok = not (f.dist[n] < ON_NODE * g.dx)
-                    if ok:
+                    if compatible(surface_point, surface_side, surface_body, xp, f, xi,
+                                  node_index(g, base[0] + i, base[1] + j, base[2] + k), g.dx):
                         mask = mask | (1 << (9 * i + 3 * j + k))
     return mask
 
