@@ -7,6 +7,9 @@ import numpy as np
 import pytest
 
 from abmpm.bench.interface import (
+    JET_SECONDS,
+    PLATE_W,
+    PLATE_Z,
     SEEDS4,
     _plate_tally,
     plate_with_slit,
@@ -17,6 +20,7 @@ from abmpm.bench.interface import (
     tank_at_rest,
 )
 from abmpm.geometry.sampling import JITTER, lattice_spacing
+from abmpm.compare.outcomes import mass_beyond_plane
 from abmpm.inputs import sample_scene
 from abmpm.simulation import Simulation
 
@@ -123,6 +127,34 @@ def test_slit_at_b3_drains_like_finest_at_one_step():
     assert abs(r["through_ratio"] - 1.0) < 0.10, r
     # the coarse grid alone clogs the slit (0 at one step, 0.025 at its own)
     assert r["original"]["through"] < 0.5 * r["finest"]["through"], r
+
+
+@pytest.mark.slow
+def test_water_thrown_at_the_back_face_of_a_slit_plate():
+    # The audit's "back face of a sheet" (2026-11-28): the 1-cell slit at b = 3 with the water
+    # thrown up at the plate's underside at 2 m/s, against gravity, 0.3 s (bench/interface.py,
+    # JETS). Measured: finest 0.0277 of the mass above the plate, original 0.0039 (0.14x),
+    # adaptive 0.0243 (0.877x) in 0.58x finest's steps. Issue 26's 10% is NOT met here; the
+    # cause is the level interface near the slit (every particle refined: 1.06x; the region grown
+    # by two more coarse cells, halo 3: 1.07x; the plate's whole band refined, "both", with
+    # finest's steps: still 0.71x at b = 4), docs/benchmarks.md, "Water thrown at a sheet". This
+    # guards today's level (0.8: 0.88 less one seed's spread, +-7%) until the interface is fixed.
+    r = run_slit(1.0, 3, JET_SECONDS, "cpu", jet=2.0)
+    assert r["finest"]["through"] > 0.01, r  # the case is what it says: water goes through
+    assert r["original"]["through"] < 0.3 * r["finest"]["through"], r  # the coarse grid nearly clogs it
+    assert r["through_ratio"] >= 0.8, r
+    assert r["steps_ratio"] <= 1.05, r  # the issue's step goal (0.58 measured)
+    # Either winding: the same plates turned over (each half 180 degrees about z in place, normals
+    # down) give the same adaptive run (0.02431 both ways, measured): the colors, CPIC's masks and
+    # the region do not depend on which face the sheet calls its front. 1% allows float32 ties.
+    scene, yp = plate_with_slit("adaptive", 1.0, 3, jet=2.0)
+    turned = [c.model_copy(update={"rotation": (0.0, 0.0, 180.0)}) for c in scene.colliders]
+    sim = Simulation(scene.model_copy(update={"colliders": turned}), device="cpu")
+    assert sim.colliders.body_meshes()[0].face_normals[0][1] < -0.99  # turned over
+    sim.advance(seconds=JET_SECONDS)
+    p = sim.particles()
+    through = mass_beyond_plane(p.x, p.mass, (PLATE_W / 2, yp, PLATE_Z / 2), (0.0, 1.0, 0.0))
+    assert abs(through / r["adaptive"]["through"] - 1.0) < 0.01, (through, r["adaptive"]["through"])
 
 
 @pytest.mark.slow

@@ -38,6 +38,12 @@ HOLES = [(1.0, 3, 0.0), (1.5, 2, 0.0), (1.5, 3, 0.0), (0.75, 4, 0.0), (1.0, 3, 0
 # the 1-cell slit at b = 3 with other fluids than the soft water (K = 2e4 Pa) of the rest:
 # (name, Fluid parameters)
 FLUIDS = [("stiff water", {"bulk_modulus": 2e5}), ("viscous fluid", {"bulk_modulus": 2e4, "viscosity": 1.0})]
+# water thrown at 2 m/s at the plate (slit or round hole, b, speed: + from below, - from above),
+# 0.3 s: an audit of 2026-11-28 found adaptive passing 0.70-0.92 of finest's mass through the
+# back face and 1.04-1.32 from above (docs/benchmarks.md, "Water thrown at a sheet")
+JETS = [(1.0, 3, False, 2.0), (1.5, 3, False, 2.0), (1.0, 4, False, 2.0), (2.0, 4, True, 2.0), (1.0, 3, False, -2.0),
+        (1.0, 4, False, -2.0)]
+JET_SECONDS = 0.3
 MODES = ("original", "adaptive", "finest")
 TANK_FACTORS = (2, 3, 4)
 
@@ -51,38 +57,41 @@ TANK_DX = 0.05  # the tank's coarse spacing
 PLATE_W, PLATE_Z, PLATE_Y = 0.4, 0.16, 0.2
 
 
-def water_over_plate(mode: str, b: int, dx: float, colliders: list) -> sm.Scene:
-    """Water falling 0.04 m onto the plate made of ``colliders`` (slip walls, K = 2e4 Pa)."""
+def water_over_plate(mode: str, b: int, dx: float, colliders: list, jet: float = 0.0) -> sm.Scene:
+    """Water falling 0.04 m onto the plate made of ``colliders`` (slip walls, K = 2e4 Pa).
+    ``jet`` (m/s): thrown at the plate instead, from below (its back face, against gravity)
+    where positive, from above where negative (``JETS``)."""
+    lo, hi = (0.0, PLATE_Y - 0.04) if jet > 0.0 else (0.24, 0.44)  # from below: the same gap under the plate
+    water = sm.BoxBody(material="water", min=(0, lo, 0), max=(PLATE_W, hi, PLATE_Z), velocity=(0.0, jet, 0.0))
     return sm.Scene(
         simulation=sm.SimulationSettings(domain_max=(PLATE_W, 0.5, PLATE_Z), dx=dx, fps=10, max_dt=2e-3,
                                          walls={"type": "slip"}, refinement={"mode": mode, "factor": b}),
-        materials=[sm.Fluid(name="water", bulk_modulus=2e4)],
-        bodies=[sm.BoxBody(material="water", min=(0, 0.24, 0), max=(PLATE_W, 0.44, PLATE_Z))], colliders=colliders)
+        materials=[sm.Fluid(name="water", bulk_modulus=2e4)], bodies=[water], colliders=colliders)
 
 
 def plate_with_slit(mode: str, slit_cells: float, b: int, dx: float = 0.04,
-                    tilt: float = 0.0, lift: float = 0.0) -> tuple[sm.Scene, float]:
+                    tilt: float = 0.0, lift: float = 0.0, jet: float = 0.0) -> tuple[sm.Scene, float]:
     """Water falling 0.04 m onto a zero-thickness plate that spans the box; its only
     way down is a slit ``slit_cells`` coarse cells wide across the box. ``tilt``
     (degrees, up to 50) turns the plate about the x axis, across the slit's length: the
     slit and the plate are then on no grid plane. ``lift`` (coarse cells) raises the plate
-    off the node plane it lies on (at 0, a node plane of every grid). Returns the scene
-    and the plate's height at its centre."""
+    off the node plane it lies on (at 0, a node plane of every grid); ``jet`` as in
+    ``water_over_plate``. Returns the scene and the plate's height at its centre."""
     half = (PLATE_W - slit_cells * dx) / 2
     y = PLATE_Y + lift * dx
     plates = [sm.SheetCollider(size=(half, PLATE_Z + 0.1), center=(c, y, PLATE_Z / 2),
                                rotation=(tilt, 0.0, 0.0)) for c in (half / 2, PLATE_W - half / 2)]
-    return water_over_plate(mode, b, dx, plates), y
+    return water_over_plate(mode, b, dx, plates, jet), y
 
 
 def plate_with_hole(mode: str, hole_cells: float, b: int, dx: float = 0.04,
-                    tilt: float = 0.0, lift: float = 0.0) -> tuple[sm.Scene, float]:
+                    tilt: float = 0.0, lift: float = 0.0, jet: float = 0.0) -> tuple[sm.Scene, float]:
     """The case of ``plate_with_slit`` with the plate spanning the box and one round hole
     ``hole_cells`` coarse cells across at its centre as the only way down."""
     y = PLATE_Y + lift * dx
     plate = SHAPE_SCHEMAS["perforated_plate"](size=(PLATE_W + 0.1, PLATE_Z + 0.1), hole_diameter=hole_cells * dx,
                                               center=(PLATE_W / 2, y, PLATE_Z / 2), rotation=(tilt, 0.0, 0.0))
-    return water_over_plate(mode, b, dx, [plate]), y
+    return water_over_plate(mode, b, dx, [plate], jet), y
 
 
 # the refinement box of the tank with a horizontal interface: the bottom 0.1 m
@@ -145,7 +154,7 @@ def one_step(scene: sm.Scene, cfl: float) -> float:
 
 def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
              tilt: float = 0.0, hole: bool = False, lift: float = 0.0, fluid: dict | None = None,
-             step: float | None = None, criterion: str | None = None) -> dict:
+             step: float | None = None, criterion: str | None = None, jet: float = 0.0) -> dict:
     """Mass through (below the plate's plane), steps and wall seconds of one slit case
     in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
     mass through in ``through_seeds``); ``tilt`` and ``lift`` as in ``plate_with_slit``; ``hole``:
@@ -155,12 +164,14 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
     number of steps in any MPM (docs/method.md, "Outcomes at a sheet depend on the step"), so
     only at one step does the ratio to finest measure the level interface alone. ``criterion``:
     the adaptive run's refinement criterion instead of the default ("both" refines the
-    plate's whole band: docs/benchmarks.md, "The plate matrix over 24 cases, four ways")."""
+    plate's whole band: docs/benchmarks.md, "The plate matrix over 24 cases, four ways"); ``jet``:
+    the water thrown at the plate (``water_over_plate``), the mass through counted beyond it."""
     out = {}
     for mode in MODES:
         runs = []
         for seed in seeds:
-            scene, yp = (plate_with_hole if hole else plate_with_slit)(mode, slit_cells, b, tilt=tilt, lift=lift)
+            build = plate_with_hole if hole else plate_with_slit
+            scene, yp = build(mode, slit_cells, b, tilt=tilt, lift=lift, jet=jet)
             scene.simulation.seed = seed
             if fluid:
                 scene.materials = [sm.Fluid(name="water", **fluid)]
@@ -170,7 +181,7 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
                 scene.simulation.refinement.criterion = criterion
             sim = Simulation(scene, device=device)
             up = sim.colliders.body_meshes()[0].face_normals[0]
-            up = up if up[1] > 0 else -up
+            up = up if (up[1] > 0) == (jet <= 0.0) else -up  # against the way through
             centre = (0.5 * scene.simulation.domain_max[0], yp, 0.5 * scene.simulation.domain_max[2])
             sim.advance(frames=1)  # kernels compiled, the first frame's split done: not timed
             steps, t0 = sim.steps, time.perf_counter()
@@ -441,10 +452,20 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
               flush=True)
-    results["plate cases"] = plates = _plate_tally([results[p[0]] for p in passages])
-    print(f"plate cases: {plates['within_10pct']} of {plates['cases']} within 10% of finest's mass through (mean log "
-          f"ratio {plates['mean_log_ratio']:+.3f}, mean abs {plates['mean_abs_log_ratio']:.3f}), "
-          f"{plates['steps_within_5pct']} within 1.05x its steps", flush=True)
+    jets = []
+    for w, b, hole, jet in JETS:
+        way = "up" if jet > 0 else "down"
+        name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {way} at it"
+        jets.append(name)
+        r = results[name] = run_slit(w, b, JET_SECONDS, device, hole=hole, step=step, criterion=criterion, jet=jet)
+        print(f"{name}: mass through adaptive / finest {r['through_ratio']} (finest {r['finest']['through']:.4f}, "
+              f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x",
+              flush=True)
+    for key, names in (("plate cases", [p[0] for p in passages]), ("thrown water", jets)):
+        results[key] = t = _plate_tally([results[n] for n in names])
+        print(f"{key}: {t['within_10pct']} of {t['cases']} within 10% of finest's mass through (mean log ratio "
+              f"{t['mean_log_ratio']:+.3f}, mean abs {t['mean_abs_log_ratio']:.3f}), {t['steps_within_5pct']} within "
+              f"1.05x its steps", flush=True)
     for key, title, run, span, factors in (
             ("tank at rest", "tank at rest, interface through the water", run_tank, 0.3, TANK_FACTORS),
             ("jelly pressed through", "jelly pressed through the 1.5-cell slit by a piston", run_piston, 0.3, (3,)),
