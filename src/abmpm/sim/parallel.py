@@ -134,10 +134,9 @@ class KernelProfile:
     parts: Counter = field(default_factory=Counter)
 
 
-def _same_arguments(a: list, b: list) -> bool:
-    # the same objects (arrays, structs), or equal plain numbers
-    return len(a) == len(b) and all(x is y or (type(x) is type(y) and type(x) in (int, float, bool) and x == y)
-                                    for x, y in zip(a, b))
+def _same_argument(x, y) -> bool:
+    # the same object (an array, a struct: a replay reads its fields afresh) or an equal number
+    return x is y or (type(x) is type(y) and type(x) in (int, float, bool) and x == y)
 
 
 class Launcher:
@@ -149,7 +148,7 @@ class Launcher:
         self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="abmpm") if self.threads > 1 else None
         self._private: dict[int, PrivateGrids] = {}
         self._warm: set = set()  # kernels (a generic one: with its argument types) launched once already
-        self._recorded: dict = {}  # (kernel, (label, site), part) -> (count, arguments, recorded launch)
+        self._recorded: dict = {}  # (kernel, (label, site), part) -> [count, arguments, recorded launch]
         self.serial = False  # run the parts one after the other on this thread (graph capture)
         # Warp's debug build (every array access bounds-checked) is not re-entrant: a
         # trivial kernel launched from two Python threads at once dies with SIGSEGV,
@@ -246,9 +245,22 @@ class Launcher:
             wp.launch(kernel, dim=count, inputs=args, device=self.device)
             return
         rec = self._recorded.get(key)
-        if rec is None or rec[0] != count or not _same_arguments(rec[1], args):
-            rec = self._recorded[key] = (count, args, wp.launch(kernel, dim=count, inputs=args, device=self.device,
-                                                                record_cmd=True))
+        # a generic kernel's recorded launch is one overload: new arguments may want another
+        if (rec is None or len(rec[1]) != len(args)
+                or (kernel.is_generic and not all(map(_same_argument, rec[1], args)))):
+            rec = self._recorded[key] = [count, list(args), wp.launch(kernel, dim=count, inputs=args,
+                                                                      device=self.device, record_cmd=True)]
+        else:
+            # a new range (a sort moved the level ranges) or a few new arguments: only
+            # those are packed again (a whole launch recorded afresh cost ~25 us more)
+            if rec[0] != count:
+                rec[2].set_dim(count)
+                rec[0] = count
+            kept = rec[1]
+            for i, arg in enumerate(args):
+                if not _same_argument(kept[i], arg):
+                    rec[2].set_param_at_index(i, arg)
+                    kept[i] = arg
         rec[2].launch()
 
     def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> PrivateGrids:
