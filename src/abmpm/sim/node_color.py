@@ -147,19 +147,13 @@ def query_color(colliders: ColliderArrays, f: ColorField, g: GridSpec, x: wp.vec
 
 
 @wp.func(inline=True)
-def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, remembered: bool):
-    """The color of x read from the nodes (module docstring), where they vouch for it;
-    else ``body`` NEEDS_QUERY (ask the BVH). ``hint``: the side x had, away from the
-    surface, when ``remembered``; else the nearest node's direction is used. ``body``
-    is -1 when the bound puts x beyond PARTICLE_BAND cells."""
+def color_from_three_nodes(f: ColorField, g: GridSpec, x: wp.vec3, step: wp.vec3, far: wp.vec3i, n2: int, b2: float):
+    """``color_from_nodes`` from the nearest node and those 1 and 2 cells out along
+    ``step`` (the last, ``far``, already read: storage index ``n2``, ball bound ``b2``):
+    every node whose ball holds x on the same flat plane, within the tolerance of the
+    best of the three bounds."""
     c = Color()
     c.body = NEEDS_QUERY
-    toward = hint
-    if not remembered:
-        n0, b0 = node_ball(f, g, x, nearest_node_coords(g, x))
-        if n0 >= 0 and b0 > 0.0 and f.body[n0] >= 0:
-            toward = f.dir[n0]
-    step = g.dx * wp.normalize(toward)
     lb = float(FAR_BOUND)
     plane = int(-1)
     plane_lb = float(FAR_BOUND)
@@ -168,8 +162,12 @@ def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, reme
     hi = wp.vec3(-1.0)
     flat = int(1)  # every such node's closest point has a plane around it (a rim distance)
     for k in range(3):
-        node = nearest_node_coords(g, x + float(k) * step)
-        n, b = node_ball(f, g, x, node)
+        node = far
+        n = n2
+        b = b2
+        if k < 2:
+            node = nearest_node_coords(g, x + float(k) * step)
+            n, b = node_ball(f, g, x, node)
         lb = wp.max(lb, b)
         if n >= 0 and b > 0.0 and f.body[n] >= 0:
             # x lies in the node's ball, so on its side
@@ -194,4 +192,40 @@ def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, reme
             c.surface_side = nrm
             c.body = f.body[plane]
             c.flat = 1  # the plane's normal
+    return c
+
+
+@wp.func(inline=True)
+def color_from_nodes(f: ColorField, g: GridSpec, x: wp.vec3, hint: wp.vec3, remembered: bool):
+    """The color of x read from the nodes (module docstring), where they vouch for it;
+    else ``body`` NEEDS_QUERY (ask the BVH). ``hint``: the side x had, away from the
+    surface, when ``remembered``; else the nearest node's direction is used. ``body``
+    is -1 when the bound puts x beyond PARTICLE_BAND cells."""
+    c = Color()
+    c.body = NEEDS_QUERY
+    toward = hint
+    if not remembered:
+        n0, b0 = node_ball(f, g, x, nearest_node_coords(g, x))
+        if n0 >= 0 and b0 > 0.0 and f.body[n0] >= 0:
+            toward = f.dir[n0]
+    step = g.dx * wp.normalize(toward)
+    # One node first: the one 2 cells out along the remembered side, whose ball is the largest
+    # and the tightest bound. Its ball alone certifies the plane's point as the rest of this
+    # function does (a point of the surface within the tolerance of a lower bound of x's
+    # distance to every surface); the other two nodes only when it does not.
+    far = nearest_node_coords(g, x + 2.0 * step)
+    n2, b2 = node_ball(f, g, x, far)
+    if remembered:
+        if n2 >= 0 and b2 >= NODE_COLOR_MIN * g.dx and b2 < PARTICLE_BAND * g.dx:
+            if f.body[n2] >= 0 and f.rim[n2] > 0.0:
+                nrm2 = f.dir[n2]
+                foot2 = node_position(g, far) - f.dist[n2] * nrm2
+                d2 = wp.dot(x - foot2, nrm2)
+                if d2 - b2 <= NODE_COLOR_TOL * g.dx and wp.length(x - d2 * nrm2 - foot2) < f.rim[n2]:
+                    c.surface_point = x - d2 * nrm2
+                    c.surface_side = nrm2
+                    c.body = f.body[n2]
+                    c.flat = 1
+    if c.body == NEEDS_QUERY:  # the three nodes, where the one did not vouch
+        c = color_from_three_nodes(f, g, x, step, far, n2, b2)
     return c
