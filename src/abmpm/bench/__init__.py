@@ -288,7 +288,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--small", action="store_true", help="only the 100k case")
     ap.add_argument("--suite", choices=["fluid", "adaptive", "colliders", "interface", "scaling", "reconstruction", "all"],
                     default="all",
-                    help="all: fluid, adaptive and colliders; interface (not in all, ~10 min on 2 cores): "
+                    help="all: fluid, adaptive and colliders; interface (not in all, ~12 min on 2 cores): "
                          "adaptive against finest on slits and round holes outside the paper (on and off the node planes, water falling on them or thrown at either face), tanks at rest (a vertical and a horizontal interface), a dam break into a refined box, a blade cutting a jelly block, a jelly pressed through a slit and a free jelly bar; "
                          "scaling (not in all, ~2 min): a sloshing tank 1-8x as long around the same refined "
                          "region (a box, or a wall with a small hole), the modes' cost (a plot beside --json); "
