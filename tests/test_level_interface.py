@@ -19,8 +19,8 @@ from abmpm.bench.interface import (
     run_tank,
     tank_at_rest,
 )
-from abmpm.geometry.sampling import JITTER, lattice_spacing
 from abmpm.compare.outcomes import mass_beyond_plane
+from abmpm.geometry.sampling import JITTER, lattice_spacing
 from abmpm.inputs import sample_scene
 from abmpm.simulation import Simulation
 

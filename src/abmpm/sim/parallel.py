@@ -245,9 +245,10 @@ class Launcher:
             wp.launch(kernel, dim=count, inputs=args, device=self.device)
             return
         rec = self._recorded.get(key)
+        changed = [] if rec is None or len(rec[1]) != len(args) else \
+            [i for i, (kept, arg) in enumerate(zip(rec[1], args)) if not _same_argument(kept, arg)]
         # a generic kernel's recorded launch is one overload: new arguments may want another
-        if (rec is None or len(rec[1]) != len(args)
-                or (kernel.is_generic and not all(map(_same_argument, rec[1], args)))):
+        if rec is None or len(rec[1]) != len(args) or (kernel.is_generic and changed):
             rec = self._recorded[key] = [count, list(args), wp.launch(kernel, dim=count, inputs=args,
                                                                       device=self.device, record_cmd=True)]
         else:
@@ -256,11 +257,9 @@ class Launcher:
             if rec[0] != count:
                 rec[2].set_dim(count)
                 rec[0] = count
-            kept = rec[1]
-            for i, arg in enumerate(args):
-                if not _same_argument(kept[i], arg):
-                    rec[2].set_param_at_index(i, arg)
-                    kept[i] = arg
+            for i in changed:
+                rec[2].set_param_at_index(i, args[i])
+                rec[1][i] = args[i]
         rec[2].launch()
 
     def private_grids(self, grid_key: int, mv: wp.array, m: wp.array) -> PrivateGrids:
