@@ -20,14 +20,17 @@ from abmpm.simulation import init_warp
 # --------------------------------------------------------------------------- split
 
 
-def split_everything(x, v, C, F, mass, b):
-    """Run the split kernel on particles that all lie in a refined region."""
+def split_everything(x, v, C, F, mass, b, material=None, history=None):
+    """Run the split kernel on particles that all lie in a refined region (elastic unless
+    ``material``; ``history``: the particles' history scalar, J for a fluid)."""
     init_warp()
     solver = MPMSolver(SolverConfig((0, 0, 0), (1, 1, 1), 0.1, refine_factor=b),
-                       [material_params(sm.Elastic(name="e"))], "cpu")
+                       [material_params(material or sm.Elastic(name="e"))], "cpu")
     n = len(x)
-    state = ParticleState.from_numpy(
-        {"x": x, "v": v, "C": C, "F": F, "mass": mass, "volume": mass / 1000.0}, "cpu")
+    arrays = {"x": x, "v": v, "C": C, "F": F, "mass": mass, "volume": mass / 1000.0}
+    if history is not None:
+        arrays["history"] = history
+    state = ParticleState.from_numpy(arrays, "cpu")
     solver.reserve_ids(n)
     solver.set_region(np.ones(tuple(d - 1 for d in solver.grid.dims), dtype=bool), state)
     return state.numpy()
@@ -102,6 +105,31 @@ def test_split_children_start_inside_the_domain_walls(b):
         assert np.allclose(np.sort((rel @ np.linalg.inv(F[k]).T / h).ravel()), np.sort(expect.ravel()), atol=1e-4)
     interior = out["x"][np.linalg.norm(out["x"] - x[3], axis=1) < h]
     assert np.allclose(interior.mean(axis=0), x[3], atol=1e-6)
+
+
+@pytest.mark.parametrize("b", [2, 3, 4])
+def test_a_compressed_fluid_parent_splits_into_the_volume_it_fills(b):
+    # A fluid keeps its volume ratio J in ``history`` and F = I. Its children must tile the
+    # volume the parent fills now, J V0, not its rest volume: placed on the rest lattice,
+    # the children of water compressed to J = 0.75 against a plate stood 1 - 0.75^(1/3) = 9%
+    # of a spacing too far apart per axis, overlapping the neighbouring families. Each
+    # child keeps the parent's J and V0 / b^3, so the children's current volumes add up to
+    # the parent's. Spacing checked to float32 round-off (1e-5 relative).
+    h = 0.05  # rest lattice spacing at dx = 0.1, 8 particles per cell
+    J = np.array([0.75, 1.0, 1.2], np.float32)
+    x = np.array([[0.3, 0.5, 0.5], [0.5, 0.5, 0.5], [0.7, 0.5, 0.5]], np.float32)
+    zeros = np.zeros((3, 3), np.float32)
+    F = np.repeat(np.eye(3, dtype=np.float32)[None], 3, axis=0)
+    mass = np.full(3, 1000.0 * h**3, np.float32)
+    out = split_everything(x, zeros, np.zeros((3, 3, 3), np.float32), F, mass, b,
+                           material=sm.Fluid(name="w"), history=J)
+    for k in range(3):
+        kids = out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]
+        assert kids.sum() == b**3 and np.allclose(out["history"][kids], J[k])
+        span = out["x"][kids].max(axis=0) - out["x"][kids].min(axis=0)  # (b - 1) child spacings
+        assert np.allclose(span, (b - 1) / b * h * J[k] ** (1 / 3), rtol=1e-5)
+        assert np.allclose(out["x"][kids].mean(axis=0), x[k], atol=1e-6)
+        assert np.isclose((out["volume"][kids] * out["history"][kids]).sum(), h**3 * J[k], rtol=1e-5)
 
 
 @pytest.mark.parametrize("b", [2, 3, 4])

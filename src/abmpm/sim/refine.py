@@ -22,6 +22,7 @@ from scipy import ndimage
 from .colliders import PARTICLE_BAND, ColliderArrays, ColorField, color_point, near_surface, stop_crossing
 from .footprint import FOOTPRINT_REACH
 from .grid import AMONG_FINE, BLOCK, ON_COARSE, Grid, GridSpec, cell_flag
+from .materials import MaterialParams, carries_F
 from .parallel import CPU_NODE_CHUNK, Launcher, reset_reach
 from .reconstruct import (
     DEFAULT_SURFACE_THRESHOLD,
@@ -83,7 +84,7 @@ def wall_shift(g: GridSpec, centre: wp.vec3, Fp: wp.mat33, h: float, b: int):
 def split_particles(
     first_parent: int,  # this launch's first particle (sim/parallel.py)
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
-    s: ParticleArrays, colliders: ColliderArrays, g1: GridSpec,
+    s: ParticleArrays, materials: wp.array(dtype=MaterialParams), colliders: ColliderArrays, g1: GridSpec,
     reconstruct: int, shift: wp.array(dtype=wp.vec3),
 ):
     p = wp.tid() + first_parent
@@ -95,7 +96,12 @@ def split_particles(
     Cp = s.C[p]
     Fp = s.F[p]
     ns = b * b * b
-    h = wp.pow(s.volume[p], 1.0 / 3.0)  # side of the parent's lattice cube
+    # side of the parent's lattice cube: its rest side, deformed by F; a model that keeps
+    # J outside F (a fluid: F stays I) has its cube's current side (J V0)^(1/3), so that
+    # the children of a compressed parent tile the volume it fills, not its rest volume
+    h = wp.pow(s.volume[p], 1.0 / 3.0)
+    if not carries_F(materials[s.material[p]]):
+        h = wp.pow(s.volume[p] * wp.abs(s.history[p]), 1.0 / 3.0)
     # surface reconstruction (Section 4.3): the whole family moves by shift[p];
     # velocities stay those of the lattice points, so mass and momentum are the split's
     family_shift = wp.vec3(0.0)
@@ -381,7 +387,7 @@ class Refiner:
                 self.reconstruct_seconds += time.perf_counter() - t0
         state.reserve(n + n_split * (ns - 1))
         self.launcher.launch(split_particles, n - skip, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
-                                                         colliders, self.fine.spec, self.surface.enabled, self._shift],
+                                                         materials, colliders, self.fine.spec, self.surface.enabled, self._shift],
                              start=skip)
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
