@@ -131,21 +131,21 @@ def test_slit_at_b3_drains_like_finest_at_one_step():
 
 @pytest.mark.slow
 def test_water_thrown_at_the_back_face_of_a_slit_plate():
-    # The audit's "back face of a sheet" (2026-11-28): the 1-cell slit at b = 3 with the water
-    # thrown up at the plate's underside at 2 m/s, against gravity, 0.3 s (bench/interface.py,
-    # JETS). Measured: finest 0.0277 of the mass above the plate, original 0.0039 (0.14x),
-    # adaptive 0.0243 (0.877x) in 0.58x finest's steps. Issue 26's 10% is NOT met here; the
-    # cause is the level interface near the slit (every particle refined: 1.06x; the region grown
-    # by two more coarse cells, halo 3: 1.07x; the plate's whole band refined, "both", with
-    # finest's steps: still 0.71x at b = 4), docs/benchmarks.md, "Water thrown at a sheet". This
-    # guards today's level (0.8: 0.88 less one seed's spread, +-7%) until the interface is fixed.
+    # The audit's "back face of a sheet": the 1-cell slit at b = 3 with the water thrown up at
+    # the plate's underside at 2 m/s, against gravity, 0.3 s, in a box of separating walls
+    # (bench/interface.py, JETS). Measured: finest 0.0657 of the mass above the plate, original
+    # 0.0219 (0.33x), adaptive 1.055x finest's (seeds 1 and 2: 1.055, 1.067) in 0.89x its steps.
+    # In a box of slip walls the same case read 0.877x: the floor held the water thrown off it
+    # in tension, 1.5 cells of its grid deep, and the floor's grid is the coarse one in adaptive
+    # mode (docs/method.md, "Water thrown at a sheet's back face"). Bound: issue 26's 10%.
     r = run_slit(1.0, 3, JET_SECONDS, "cpu", jet=2.0)
     assert r["finest"]["through"] > 0.01, r  # the case is what it says: water goes through
-    assert r["original"]["through"] < 0.3 * r["finest"]["through"], r  # the coarse grid nearly clogs it
-    assert r["through_ratio"] >= 0.8, r
-    assert r["steps_ratio"] <= 1.05, r  # the issue's step goal (0.58 measured)
+    # the coarse grid clearly worse (0.33x), as the other slits' tests hold it (half of finest's)
+    assert r["original"]["through"] < 0.5 * r["finest"]["through"], r
+    assert abs(r["through_ratio"] - 1.0) <= 0.10, r
+    assert r["steps_ratio"] <= 1.05, r  # the issue's step goal (0.89 measured)
     # Either winding: the same plates turned over (each half 180 degrees about z in place, normals
-    # down) give the same adaptive run (0.02431 both ways, measured): the colors, CPIC's masks and
+    # down) give the same adaptive run (measured: the same to 4 digits): the colors, CPIC's masks and
     # the region do not depend on which face the sheet calls its front. 1% allows float32 ties.
     scene, yp = plate_with_slit("adaptive", 1.0, 3, jet=2.0)
     turned = [c.model_copy(update={"rotation": (0.0, 0.0, 180.0)}) for c in scene.colliders]
