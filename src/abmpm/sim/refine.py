@@ -387,8 +387,8 @@ class Refiner:
                 self.reconstruct_seconds += time.perf_counter() - t0
         state.reserve(n + n_split * (ns - 1))
         self.launcher.launch(split_particles, n - skip, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
-                                                         materials, colliders, self.fine.spec, self.surface.enabled, self._shift],
-                             start=skip)
+                                                         materials, colliders, self.fine.spec, self.surface.enabled,
+                                                         self._shift], start=skip)
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split
