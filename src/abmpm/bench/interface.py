@@ -39,9 +39,9 @@ HOLES = [(1.0, 3, 0.0), (1.5, 2, 0.0), (1.5, 3, 0.0), (0.75, 4, 0.0), (1.0, 3, 0
 # (name, Fluid parameters)
 FLUIDS = [("stiff water", {"bulk_modulus": 2e5}), ("viscous fluid", {"bulk_modulus": 2e4, "viscosity": 1.0})]
 # water thrown at 2 m/s at the plate (slit or round hole, b, speed: + from below, - from above),
-# 0.3 s, separating walls: an audit of 2026-11-28 found adaptive passing 0.70-0.92 of finest's
-# mass through the back face in a box of slip walls, which held the water on the floor
-# (docs/benchmarks.md, "Water thrown at a sheet" and "Thrown water leaves the floor")
+# 0.3 s: an audit of 2026-11-28 found adaptive passing 0.70-0.92 of finest's mass through the
+# back face in a box of slip walls, which held the water on the floor (docs/benchmarks.md,
+# "Water thrown at a sheet" and "Thrown water leaves the floor")
 JETS = [(1.0, 3, False, 2.0), (1.5, 3, False, 2.0), (1.0, 4, False, 2.0), (2.0, 4, True, 2.0), (1.0, 3, False, -2.0),
         (1.0, 4, False, -2.0)]
 JET_SECONDS = 0.3
@@ -59,16 +59,16 @@ PLATE_W, PLATE_Z, PLATE_Y = 0.4, 0.16, 0.2
 
 
 def water_over_plate(mode: str, b: int, dx: float, colliders: list, jet: float = 0.0) -> sm.Scene:
-    """Water falling 0.04 m onto the plate made of ``colliders`` (slip walls, K = 2e4 Pa).
-    ``jet`` (m/s): thrown at the plate instead, from below (its back face, against gravity)
-    where positive, from above where negative (``JETS``), in a box of separating walls: a
-    slip wall holds water that leaves it (docs/method.md, "Water thrown at a sheet's back
-    face"), and the water thrown up leaves the floor."""
+    """Water falling 0.04 m onto the plate made of ``colliders`` (K = 2e4 Pa), in a box of
+    separating walls (the scenes' default; until 2026-11-29 slip walls, which hold water that
+    leaves them 1.5 cells of their grid deep, and adaptive mode's walls are coarse: docs/method.md,
+    "What the interface matrix's misses are made of"). ``jet`` (m/s): thrown at the plate
+    instead, from below (its back face, against gravity) where positive, from above where
+    negative (``JETS``)."""
     lo, hi = (0.0, PLATE_Y - 0.04) if jet > 0.0 else (0.24, 0.44)  # from below: the same gap under the plate
     water = sm.BoxBody(material="water", min=(0, lo, 0), max=(PLATE_W, hi, PLATE_Z), velocity=(0.0, jet, 0.0))
     return sm.Scene(
         simulation=sm.SimulationSettings(domain_max=(PLATE_W, 0.5, PLATE_Z), dx=dx, fps=10, max_dt=2e-3,
-                                         walls={"type": "separate" if jet else "slip"},
                                          refinement={"mode": mode, "factor": b}),
         materials=[sm.Fluid(name="water", bulk_modulus=2e4)], bodies=[water], colliders=colliders)
 
@@ -293,12 +293,12 @@ DAM_REFINED = 0.56
 def dam_break(mode: str, b: int, dx: float = 0.04) -> sm.Scene:
     """A water column (0.2 m wide, 0.3 m high, soft: K = 2e4 Pa) collapses along the
     floor from the coarse part into a refinement box at the far wall and runs up it:
-    fine and coarse water meet against a wall. 100 frames a second."""
+    fine and coarse water meet against a wall. 100 frames a second, separating walls (slip
+    walls until 2026-11-29: the coarse floor held the sheet of water running along it)."""
     ref = {"mode": mode, "factor": b, "boxes": [[[DAM_REFINED, 0.0, 0.0], [DAM_W, DAM_H, DAM_Z]]]}
     return sm.Scene(
         name=f"dam_break_{mode}_b{b}",
-        simulation=sm.SimulationSettings(domain_max=(DAM_W, DAM_H, DAM_Z), dx=dx, fps=100, walls={"type": "slip"},
-                                         refinement=ref),
+        simulation=sm.SimulationSettings(domain_max=(DAM_W, DAM_H, DAM_Z), dx=dx, fps=100, refinement=ref),
         materials=[sm.Fluid(name="water", bulk_modulus=2e4)],
         bodies=[sm.BoxBody(material="water", min=(0, 0, 0), max=(COLUMN_W, COLUMN_H, DAM_Z))])
 
