@@ -136,7 +136,7 @@ def test_water_thrown_at_the_back_face_of_a_slit_plate():
     # The audit's "back face of a sheet": the 1-cell slit at b = 3 with the water thrown up at
     # the plate's underside at 2 m/s, against gravity, 0.3 s, in a box of separating walls
     # (bench/interface.py, JETS). Measured: finest 0.0657 of the mass above the plate, original
-    # 0.0219 (0.33x), adaptive 1.055x finest's (seeds 1 and 2: 1.055, 1.067) in 0.89x its steps.
+    # 0.0219 (0.33x), adaptive 1.054x finest's (seeds 1 and 2: 1.055, 1.067) in 0.89x its steps.
     # In a box of slip walls the same case read 0.877x: the floor held the water thrown off it
     # in tension, 1.5 cells of its grid deep, and the floor's grid is the coarse one in adaptive
     # mode (docs/method.md, "Water thrown at a sheet's back face"). Bound: issue 26's 10%.
@@ -167,8 +167,7 @@ def test_round_hole_at_b3_takes_finests_steps():
     # 0.65-0.75 there), and the step, which follows the most compressed fluid, made the
     # run take 1.137x finest's steps. Since level-0 particles in a collider's band move
     # with the fine grid where it holds them whole (docs/method.md), 0.971x (1.001x in the
-    # separating walls of the box since 2026-11-29). The issue's
-    # bound: at most 5% above finest's.
+    # separating walls of the box since 2026-11-29). The issue's bound: at most 5% above finest's.
     r = run_slit(1.0, 3, 0.5, "cpu", hole=True)
     assert r["steps_ratio"] <= 1.05, r
     # the case is what it says: the coarse grid clogs the hole (original 0.0019 of the

@@ -245,10 +245,10 @@ class Launcher:
             wp.launch(kernel, dim=count, inputs=args, device=self.device)
             return
         rec = self._recorded.get(key)
-        changed = [] if rec is None or len(rec[1]) != len(args) else \
-            [i for i, (kept, arg) in enumerate(zip(rec[1], args)) if not _same_argument(kept, arg)]
+        fresh = rec is None or len(rec[1]) != len(args)
+        changed = [] if fresh else [i for i, arg in enumerate(args) if not _same_argument(rec[1][i], arg)]
         # a generic kernel's recorded launch is one overload: new arguments may want another
-        if rec is None or len(rec[1]) != len(args) or (kernel.is_generic and changed):
+        if fresh or (kernel.is_generic and changed):
             rec = self._recorded[key] = [count, list(args), wp.launch(kernel, dim=count, inputs=args,
                                                                       device=self.device, record_cmd=True)]
         else:

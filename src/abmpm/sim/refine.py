@@ -99,9 +99,10 @@ def split_particles(
     # side of the parent's lattice cube: its rest side, deformed by F; a model that keeps
     # J outside F (a fluid: F stays I) has its cube's current side (J V0)^(1/3), so that
     # the children of a compressed parent tile the volume it fills, not its rest volume
-    h = wp.pow(s.volume[p], 1.0 / 3.0)
+    cube = s.volume[p]
     if not carries_F(materials[s.material[p]]):
-        h = wp.pow(s.volume[p] * wp.abs(s.history[p]), 1.0 / 3.0)
+        cube = cube * wp.abs(s.history[p])
+    h = wp.pow(cube, 1.0 / 3.0)
     # surface reconstruction (Section 4.3): the whole family moves by shift[p];
     # velocities stay those of the lattice points, so mass and momentum are the split's
     family_shift = wp.vec3(0.0)
