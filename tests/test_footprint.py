@@ -86,3 +86,37 @@ def test_a_lattice_of_footprints_is_uniform(b):
     wp.launch(_deposit, len(x), inputs=[_grid(dxf), wp.array(x, dtype=wp.vec3), h**3, field], device="cpu")
     inner = field.numpy()[14:26, 14:26, 14:26] / dxf**3
     assert np.allclose(inner, 1.0, atol=1e-4), (inner.min(), inner.max())
+
+
+def _fine_points_1d(k: np.ndarray) -> np.ndarray:
+    # the same material sampled fine from the wall plane (node 0) on: points half a fine
+    # cell apart, each half a cell's volume, under the quadratic B-spline
+    r = np.abs(k[:, None] - (np.arange(80) + 0.5) * 0.5)
+    n = np.where(r < 0.5, 0.75 - r * r, np.where(r < 1.5, 0.5 * (1.5 - r) ** 2, 0.0))
+    return 0.5 * n.sum(axis=1)
+
+
+@pytest.mark.parametrize("b", [3, 4])
+def test_boxes_up_to_a_wall_give_the_nodes_along_it_the_fine_volume(b):
+    # Boxes that tile the material up to a domain wall (the wall plane at fine node
+    # WALL, the first box's face on it) give the fine nodes along the wall the volume
+    # the same material sampled fine gives them (0.016, 0.5, 0.984, 1 of a cell's from
+    # the node beyond the plane on). Tolerance 0.01 of a cell's volume: a box and points
+    # sample the same material differently (0.021 against 0.016 beyond the plane, 0.979
+    # against 0.984 on the second node). A box cut half a cell inside the plane (the rule
+    # until 2026-11-29) gave the second and third nodes 1.35 and 0.83 at b = 4 (1.17 and
+    # 0.90 at b = 3), the lumps that squeezed the children in a tank's corner.
+    dxf = 1.0 / DIMS
+    h = b * dxf / 2
+    WALL = 8
+    n = int(round(24 * dxf / h))
+    cx = WALL * dxf + (np.arange(n) + 0.5) * h
+    c = (np.arange(n) + 0.5) * h + 8 * dxf
+    x = np.stack(np.meshgrid(cx, c, c, indexing="ij"), -1).reshape(-1, 3)
+    g = _grid(dxf)
+    g.domain_lo = wp.vec3(WALL * dxf, -1.0, -1.0)
+    field = wp.zeros((DIMS, DIMS, DIMS), dtype=float, device="cpu")
+    wp.launch(_deposit, len(x), inputs=[g, wp.array(x, dtype=wp.vec3), h**3, field], device="cpu")
+    along = field.numpy()[WALL - 1:WALL + 5, 14:26, 14:26].mean(axis=(1, 2)) / dxf**3
+    expected = _fine_points_1d(np.arange(-1, 5, dtype=float))
+    assert np.allclose(along, expected, atol=0.01), (along.round(3), expected.round(3))

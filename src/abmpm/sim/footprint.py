@@ -52,7 +52,7 @@ class Footprint:
     wy: vec5
     wz: vec5
     nodes: int  # FOOTPRINT_NODES, as a run-time value: loops over it are not unrolled
-    a: wp.vec3  # the box's half-width per axis, fine cells (shrunk next to a domain wall)
+    a: wp.vec3  # the box's half-width per axis, fine cells (cut at a domain wall's plane)
     inertia_inv: wp.mat33  # D^-1 of MLS-MPM for this kernel, 1/m^2 (4/dx^2 I for a point)
 
 
@@ -92,10 +92,14 @@ def footprint_base(X: float, a: float, dim: int):
 
 @wp.func
 def half_width(a: float, X: float, lo: float, hi: float):
-    # Next to a domain wall the box shrinks so that the footprint reaches no node
-    # beyond the wall plane's (as a point at half a cell from the wall does not):
-    # those nodes only carry the wall's condition
-    return wp.clamp(wp.min(X - lo, hi - X) - 0.5, 1.0e-3, a)
+    # Next to a domain wall the box is cut at the wall plane, where the material it
+    # stands for ends: boxes that tile the material up to the wall then give the fine
+    # nodes along it the volume that the same material sampled fine gives them. (Cut
+    # half a cell inside the plane, as until 2026-11-29, they gave the second node
+    # from the wall 1.35 and the third 0.83 of a cell's volume at b = 4.) The footprint
+    # then reaches one node past the plane, as a fine particle within half a cell of
+    # the wall does.
+    return wp.clamp(wp.min(X - lo, hi - X), 1.0e-3, a)
 
 
 @wp.func
