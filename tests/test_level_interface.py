@@ -75,7 +75,11 @@ def test_tank_at_rest_across_the_level_interface_at_b4():
     # within 3x (not yet finest's: the children of a family share their parent's
     # jitter, and the two grids still move their own particles), nothing faster than
     # 1.5x finest's fastest, and the goal for the steps (5% above finest's).
-    r = run_tank(0.15, "cpu", b=4)
+    # Run for 0.3 s: with each box shrunk half a fine cell inside the domain walls (until
+    # 2026-11-29) a child where the interface meets the floor and a wall was squeezed
+    # from about 0.15 s on and the run took 1.064x finest's steps by 0.3 s; with the box
+    # cut at the wall plane 1.003x (interface J spread 1.62x, fastest 1.22x).
+    r = run_tank(0.3, "cpu", b=4)
     assert r["interface_J_ratio"] < 3.0, r
     assert r["fastest_ratio"] < 1.5, r
     assert r["steps_ratio"] <= 1.05, r
