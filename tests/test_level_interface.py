@@ -59,8 +59,11 @@ def test_tank_at_rest_across_the_level_interface():
     # the issue's measure: J next to the interface within 0.01 of J at the same depth
     # far from it (per-depth means; 0.2 off at 0.5 s when the issue was filed; measured
     # 0.0018, finest 0.0004), and the free surface flat within half a fine cell
-    # (0.0125 m; measured 0.0068 over the columns away from the walls, finest 0.0017)
+    # (0.0125 m) across the interface (measured 0.0039 over the four columns around it,
+    # finest 0.0013) and over the tank (0.0068 over the columns away from the walls, as
+    # original mode's own surface reads; finest 0.0017)
     assert r["adaptive"]["depth_J_gap"] < 0.01, r
+    assert r["adaptive"]["interface_surface_range"] < 0.0125, r
     assert r["adaptive"]["surface_range"] < 0.0125, r
 
 
@@ -78,11 +81,15 @@ def test_tank_at_rest_across_the_level_interface_at_b4():
     # Run for 0.3 s: with each box shrunk half a fine cell inside the domain walls (until
     # 2026-11-29) a child where the interface meets the floor and a wall was squeezed
     # from about 0.15 s on and the run took 1.064x finest's steps by 0.3 s; with the box
-    # cut at the wall plane 1.003x (interface J spread 1.62x, fastest 1.22x).
+    # cut at the wall plane 1.003x (interface J spread 1.62x, fastest 1.22x). And the
+    # issue's flat surface across the interface: within half a fine cell (0.00625 m) over
+    # the four columns around it (measured 0.0047, finest 0.0007; over the whole tank
+    # 0.0070, as original mode's coarse surface reads 0.0068).
     r = run_tank(0.3, "cpu", b=4)
     assert r["interface_J_ratio"] < 3.0, r
     assert r["fastest_ratio"] < 1.5, r
     assert r["steps_ratio"] <= 1.05, r
+    assert r["adaptive"]["interface_surface_range"] < r["half_fine_cell"], r
 
 
 @pytest.mark.slow
