@@ -11,7 +11,6 @@ from abmpm.bench.interface import (
     PLATE_W,
     PLATE_Z,
     SEEDS4,
-    _plate_tally,
     plate_with_slit,
     run_dam_break,
     run_layered_tank,
@@ -19,6 +18,7 @@ from abmpm.bench.interface import (
     run_tank,
     tank_at_rest,
 )
+from abmpm.bench.interface_report import plate_tally
 from abmpm.compare.outcomes import mass_beyond_plane
 from abmpm.geometry.sampling import JITTER, lattice_spacing
 from abmpm.inputs import sample_scene
@@ -250,6 +250,6 @@ def test_the_plate_tally_counts_issue_26s_goals():
     # the interface suite's summary line: 10% on the mass through (both ways), 1.05x steps
     rows = [{"through_ratio": 1.099, "steps_ratio": 1.05}, {"through_ratio": 0.899, "steps_ratio": 0.8},
             {"through_ratio": 1.2, "steps_ratio": 1.06}, {"through_ratio": None, "steps_ratio": None}]
-    t = _plate_tally(rows)
+    t = plate_tally(rows)
     assert (t["cases"], t["within_10pct"], t["steps_within_5pct"]) == (4, 1, 2)
     assert t["mean_log_ratio"] == pytest.approx((np.log(1.099) + np.log(0.899) + np.log(1.2)) / 3, abs=1e-4)

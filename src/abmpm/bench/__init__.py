@@ -304,6 +304,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--criterion", choices=get_args(Refinement.model_fields["criterion"].annotation), default=None,
                     help="interface suite: the plate cases' adaptive runs refine by this criterion instead of "
                          "the default (both: every sheet's band too, closer to finest at more cost)")
+    ap.add_argument("--seeds", type=int, default=1,
+                    help="interface suite: the plate cases and the thrown water over at least this many jitter "
+                         "seeds each (one run's chaos moves some rows by 5-15%%; 4 seeds take about 4x as long)")
     ap.add_argument("--profile", action="store_true",
                     help="adaptive suite: time every kernel and phase of the step (ms per step) and how "
                          "evenly the CPU threads share each (busiest thread over the mean)")
@@ -320,6 +323,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
     if args.criterion is not None and args.suite != "interface":
         ap.error("--criterion: only the interface suite takes it (add --suite interface)")
+    if args.seeds != 1 and (args.suite != "interface" or args.seeds < 1):
+        ap.error(f"--seeds {args.seeds}: a count of at least 1, for the interface suite only (add --suite interface)")
     device = choose_device(args.device)
     kind = "cuda" if device.startswith("cuda") else "cpu"
     reference = args.reference or default_reference()
@@ -389,7 +394,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
                   + (f"lists {row['lists_ns']} ns, " if row["lists_built"] else "no lists (they would not pay), ")
                   + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
-    interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion)
+    interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion, seeds=args.seeds)
                  if args.suite == "interface" else {})
     scaling = []
     if args.suite == "scaling":
@@ -399,7 +404,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
         "adaptive": adaptive, "colliders": colliders, "interface": interface,
-        "interface_options": {"one_step": args.one_step, "criterion": args.criterion} if interface else {},
+        "interface_options": {"one_step": args.one_step, "criterion": args.criterion, "seeds": args.seeds}
+        if interface else {},
         "scaling": scaling,
         "reconstruction": reconstruction,
     }

@@ -18,6 +18,7 @@ from ..scene.colliders import SHAPE_SCHEMAS
 from ..scene.loader import load_scene
 from ..scene.model import with_mode
 from ..simulation import Simulation
+from .interface_report import plate_tally, seed_error, summary_line
 
 # (slit width in coarse cells, refinement factor b, jitter seeds). The mass through
 # at one instant depends on the seed: finest mode's 1-cell slit at b = 2 reads
@@ -407,52 +408,13 @@ def run_blade_cut(seconds: float, device: str, b: int = 2) -> dict:
     return {**res, **_against_finest(res, width_ratio="width", roughness_ratio="roughness", steps_ratio="steps")}
 
 
-def _summary(key: str, r: dict) -> str:
-    """One line of the suite's report for a case of ``run_interface_suite``."""
-    steps = f"steps {r['steps_ratio']}x finest's" if "steps_ratio" in r else ""
-    if key == "tank at rest":
-        o, a, f = r["original"], r["adaptive"], r["finest"]
-        return (f"level-1 J spread {r['J_spread_ratio']}x finest's, at the interface {r['interface_J_ratio']}x, "
-                f"fastest particle {r['fastest_ratio']}x finest's (over the run {r['fastest_over_run_ratio']}x), "
-                f"{steps}; J at the interface against the same depth far from it {a['depth_J_gap']:.4f} (goal 0.01; "
-                f"finest {f['depth_J_gap']:.4f}), surface range across the interface "
-                f"{a['interface_surface_range']:.4f} m (goal half a fine cell, {r['half_fine_cell']:.4f}; finest "
-                f"{f['interface_surface_range']:.4f}), over the tank {a['surface_range']:.4f} m (finest "
-                f"{f['surface_range']:.4f}, original {o['surface_range']:.4f})")
-    if key == "jelly pressed through":
-        return (f"mass through adaptive {r['adaptive']['through']:.4f}, finest {r['finest']['through']:.4f}, original "
-                f"{r['original']['through']:.4f} -> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); {steps}")
-    if key == "layered tank at rest":
-        return (f"level-1 J spread {r['J_spread_ratio']}x finest's at the same heights, fastest particle "
-                f"{r['fastest_ratio']}x finest's, {steps}")
-    if key == "blade cut":
-        o, a, f = (1e3 * r[m]["width"] for m in MODES)
-        return (f"cut width original {o:.1f}, adaptive {a:.1f}, finest {f:.1f} mm -> adaptive / finest "
-                f"{r['width_ratio']} (goal 0.9-1.1), roughness {r['roughness_ratio']}x finest's; {steps}")
-    if key == "dam break":
-        o, f = r["original"], r["finest"]
-        return (f"the front's time across the box adaptive / finest {r['crossing_ratio']}, run-up at the wall "
-                f"{r['runup_ratio']} (goal 0.9-1.1; original {o['crossing']:.3f} s, {o['runup']:.3f} m; finest "
-                f"{f['crossing']:.3f} s, {f['runup']:.3f} m); {steps} (goal <= 1.05)")
-    return (f"largest total momentum / one half's (0 exactly; finest's is float round-off) {r['drift']}; "
-            f"kinetic energy at 0.4 s adaptive / finest {r['ke_ratio']}")
-
-
-def _plate_tally(rows: list[dict]) -> dict:
-    """The plate cases against issue 26's goals: mass through within 10% of finest's, steps at
-    most 1.05x finest's, and the mean (signed and absolute) log ratio of the mass through."""
-    logs = [float(np.log(r["through_ratio"])) for r in rows if r["through_ratio"]]
-    return {"cases": len(rows), "within_10pct": int(sum(abs(np.exp(x) - 1.0) <= 0.1 for x in logs)),
-            "steps_within_5pct": int(sum(r["steps_ratio"] is not None and r["steps_ratio"] <= 1.05 for r in rows)),
-            "mean_log_ratio": round(float(np.mean(logs)), 4) if logs else None,
-            "mean_abs_log_ratio": round(float(np.mean(np.abs(logs))), 4) if logs else None}
-
-
 def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None,
-                        criterion: str | None = None) -> dict:
+                        criterion: str | None = None, seeds: int = 1) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results. ``step``: the
     plate cases at one fixed step for every mode, ``criterion``: their adaptive runs with
-    that refinement criterion (``run_slit``); the other cases as always."""
+    that refinement criterion (``run_slit``), ``seeds``: the plate cases and the thrown water
+    over at least that many jitter seeds (a single run's chaos moves some rows by 5-15%:
+    docs/benchmarks.md); the other cases as always."""
     results = {}
 
     def lifted(lift: float) -> str:
@@ -462,27 +424,27 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
                  tilt, False, lift) for w, b, seeds, tilt, lift in SLITS] + [
         (f"round hole {w} cells, b = {b}" + lifted(lift), w, b, (0,), 0.0, True, lift) for w, b, lift in HOLES]
     passages += [(f"slit 1.0 cells, b = 3, {name}", 1.0, 3, (0,), 0.0, False, 0.0, fluid) for name, fluid in FLUIDS]
-    for name, w, b, seeds, tilt, hole, lift, *fluid in passages:
-        r = results[name] = run_slit(w, b, seconds, device, seeds, tilt, hole, lift, fluid[0] if fluid else None, step,
+    for name, w, b, own, tilt, hole, lift, *fluid in passages:
+        runs = tuple(range(max(len(own), seeds)))
+        r = results[name] = run_slit(w, b, seconds, device, runs, tilt, hole, lift, fluid[0] if fluid else None, step,
                                      criterion)
-        at = f" (one step, cfl {step:g} at rest)" if step else ""
-        at += f" (criterion {criterion})" if criterion else ""
+        at = (f" (one step, cfl {step:g} at rest)" if step else "") + (f" (criterion {criterion})" if criterion else "")
         print(f"{name}{at}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
-              f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(seeds)} seed{'s' if len(seeds) > 1 else ''})",
-              flush=True)
+              f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(runs)} seed{'s' if len(runs) > 1 else ''}"
+              f"{'; standard error ' + seed_error(r) if len(runs) > 1 else ''})", flush=True)
     jets = []
     for w, b, hole, jet in JETS:
-        way = "up" if jet > 0 else "down"
-        name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {way} at it"
+        name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {'up' if jet > 0 else 'down'} at it"
         jets.append(name)
-        r = results[name] = run_slit(w, b, JET_SECONDS, device, hole=hole, step=step, criterion=criterion, jet=jet)
+        r = results[name] = run_slit(w, b, JET_SECONDS, device, tuple(range(seeds)), hole=hole, step=step,
+                                     criterion=criterion, jet=jet)
         print(f"{name}: mass through adaptive / finest {r['through_ratio']} (finest {r['finest']['through']:.4f}, "
-              f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x",
-              flush=True)
+              f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x"
+              f"{' (' + str(seeds) + ' seeds; standard error ' + seed_error(r) + ')' if seeds > 1 else ''}", flush=True)
     for key, names in (("plate cases", [p[0] for p in passages]), ("thrown water", jets)):
-        results[key] = t = _plate_tally([results[n] for n in names])
+        results[key] = t = plate_tally([results[n] for n in names])
         print(f"{key}: {t['within_10pct']} of {t['cases']} within 10% of finest's mass through (mean log ratio "
               f"{t['mean_log_ratio']:+.3f}, mean abs {t['mean_abs_log_ratio']:.3f}), {t['steps_within_5pct']} within "
               f"1.05x its steps", flush=True)
@@ -496,5 +458,5 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
             ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3))):
         for b in factors:
             r = results[f"{key}, b = {b}"] = run(span, device, b)
-            print(f"{title}, b = {b}: {_summary(key, r)}", flush=True)
+            print(f"{title}, b = {b}: {summary_line(key, r)}", flush=True)
     return results
