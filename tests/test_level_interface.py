@@ -11,6 +11,7 @@ from abmpm.bench.interface import (
     PLATE_W,
     PLATE_Z,
     SEEDS4,
+    SEEDS8,
     plate_with_slit,
     run_dam_break,
     run_layered_tank,
@@ -93,8 +94,8 @@ def test_tank_at_rest_across_the_level_interface_at_b4():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("slit_cells", [0.5, 1.0])
-def test_slit_outside_the_paper_drains_like_finest(slit_cells):
+@pytest.mark.parametrize("slit_cells, seeds", [(0.5, SEEDS8), (1.0, SEEDS4)])
+def test_slit_outside_the_paper_drains_like_finest(slit_cells, seeds):
     # A plate spanning the box with a slit across it, b = 2, default refinement
     # (feature criterion, reconstruction, merge), 0.5 s. The mass through at one
     # instant varies with the particle jitter's seed by +-7% in finest mode itself
@@ -108,8 +109,12 @@ def test_slit_outside_the_paper_drains_like_finest(slit_cells):
     # with the fine grid as their boxes) 0.920 and 1.094 in 1.009x and 0.962x (docs/method.md,
     # "The contact band's ties, and the band rule at b = 2"). All of that in a box of slip walls; in
     # the separating walls of the scenes' default (since 2026-11-29) 0.918 and 1.075 in 1.008x and
-    # 0.953x finest's steps.
-    r = run_slit(slit_cells, 2, 0.5, "cpu", seeds=SEEDS4)
+    # 0.953x finest's steps. The 0.5-cell slit drains least (1.3% of the mass): over seeds
+    # 0-3 and 4-7 finest's means differ by 6.5% and adaptive's four-seed standard error is
+    # 4.6%, so a change that leaves the eight-seed mean where it was (a coarse box cut at the
+    # wall plane, 2026-11-29: 0.01249 -> 0.01261) moved the four-seed ratio 0.918 -> 0.865.
+    # It takes the mean of eight seeds (measured 0.947).
+    r = run_slit(slit_cells, 2, 0.5, "cpu", seeds=seeds)
     assert r["finest"]["through"] > 0.01  # the case is what it says: water does go through
     # the issue's bound: the outcome within 10% of finest
     assert abs(r["through_ratio"] - 1.0) < 0.10, r
