@@ -251,13 +251,14 @@ def _settled_tank(mode: str, b: int, seconds: float, device: str, layered: bool 
     in every mode: the settling waves), the steps."""
     sim = Simulation(tank_at_rest(mode, TANK_DX, b, layered), device=device)
     sim.set_particles(history=hydrostatic_J(sim.particles().by_id().x[:, 1]).astype(np.float32))
-    fastest_over_run = 0.0
+    p, fastest, fastest_over_run = sim.particles(), 0.0, 0.0
     while sim.time < seconds - 1e-9:
         sim.advance(frames=1)
-        fastest_over_run = max(fastest_over_run, float(np.linalg.norm(sim.particles().v, axis=1).max()))
-    p = sim.particles()
-    return p, p.J - hydrostatic_J(p.x[:, 1]), {"fastest": float(np.linalg.norm(p.v, axis=1).max()),
-                                               "fastest_over_run": fastest_over_run, "steps": sim.steps}
+        p = sim.particles()
+        fastest = float(np.linalg.norm(p.v, axis=1).max())
+        fastest_over_run = max(fastest_over_run, fastest)
+    return p, p.J - hydrostatic_J(p.x[:, 1]), {"fastest": fastest, "fastest_over_run": fastest_over_run,
+                                               "steps": sim.steps}
 
 
 def run_tank(seconds: float, device: str, b: int = 2) -> dict:
@@ -435,7 +436,7 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
               f"(goal <= 1.05), wall {r['wall_ratio']}x ({len(runs)} seed{'s' if len(runs) > 1 else ''}"
-              f"{'; standard error ' + seed_error(r) if len(runs) > 1 else ''})", flush=True)
+              f"{seed_error(r)})", flush=True)
     jets = []
     for w, b, hole, jet in JETS:
         name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {'up' if jet > 0 else 'down'} at it"
@@ -444,7 +445,7 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
                                      criterion=criterion, jet=jet)
         print(f"{name}: mass through adaptive / finest {r['through_ratio']} (finest {r['finest']['through']:.4f}, "
               f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x"
-              f"{' (' + str(seeds) + ' seeds; standard error ' + seed_error(r) + ')' if seeds > 1 else ''}", flush=True)
+              f"{f' ({seeds} seeds{seed_error(r)})' if seeds > 1 else ''}", flush=True)
     for key, names in (("plate cases", [p[0] for p in passages]), ("thrown water", jets)):
         results[key] = t = plate_tally([results[n] for n in names])
         print(f"{key}: {t['within_10pct']} of {t['cases']} within 10% of finest's mass through (mean log ratio "

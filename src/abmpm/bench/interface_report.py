@@ -49,6 +49,11 @@ def plate_tally(rows: list[dict]) -> dict:
 
 
 def seed_error(r: dict) -> str:
-    """The standard error of each mode's mean mass through over its seeds, relative."""
-    return ", ".join(f"{m} {np.std(r[m]['through_seeds'], ddof=1) / np.sqrt(len(r[m]['through_seeds'])) / r[m]['through']:.1%}"
-                     for m in ("adaptive", "finest") if len(r[m]["through_seeds"]) > 1 and r[m]["through"])
+    """"; standard error" and each mode's standard error of its mean mass through over its
+    seeds, relative to the mean; "" for a case run on one seed."""
+    parts = []
+    for m in ("adaptive", "finest"):
+        seeds = r[m]["through_seeds"]
+        if len(seeds) > 1 and r[m]["through"]:
+            parts.append(f"{m} {np.std(seeds, ddof=1) / np.sqrt(len(seeds)) / r[m]['through']:.1%}")
+    return "; standard error " + ", ".join(parts) if parts else ""
