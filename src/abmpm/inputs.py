@@ -33,6 +33,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
     return SolverConfig(
         domain_lo=st.domain_min, domain_hi=st.domain_max, dx=st.dx, gravity=st.gravity,
         walls={f: st.walls.face(f) for f in FACES},
+        wall_images=st.walls.images,
         refine_factor=b if mode == "adaptive" else None,
         base_level=1 if mode == "finest" else 0,
         reconstruct=st.refinement.reconstruct,

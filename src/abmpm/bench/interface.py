@@ -131,14 +131,16 @@ def run_piston(seconds: float, device: str, b: int = 3, slit_cells: float = 1.5)
     return {**res, **_against_finest(res, through_ratio="through", steps_ratio="steps")}
 
 
-def tank_at_rest(mode: str, dx: float = TANK_DX, b: int = 2, layered: bool = False) -> sm.Scene:
+def tank_at_rest(mode: str, dx: float = TANK_DX, b: int = 2, layered: bool = False,
+                 wall_images: bool = False) -> sm.Scene:
     """A tank of water whose right half is a refinement box: the level interface runs
     through the water. ``layered``: the box is the bottom TANK_LAYER instead, coarse water
-    resting on refined water. Start it with ``hydrostatic_J`` for a state at rest."""
+    resting on refined water. ``wall_images``: the walls' ``images`` option. Start it with
+    ``hydrostatic_J`` for a state at rest."""
     box = ((0.0, 0.0, 0.0), (TANK_W, TANK_LAYER, TANK_Z)) if layered else ((TANK_W / 2, 0.0, 0.0), (TANK_W, 0.4, TANK_Z))
     return sm.Scene(
         simulation=sm.SimulationSettings(
-            domain_max=(TANK_W, 0.4, TANK_Z), dx=dx, fps=20, walls={"type": "slip"},
+            domain_max=(TANK_W, 0.4, TANK_Z), dx=dx, fps=20, walls={"type": "slip", "images": wall_images},
             refinement={"mode": mode, "factor": b, "boxes": [box]}),
         materials=[sm.Fluid(name="water", density=RHO, bulk_modulus=K)],
         bodies=[sm.BoxBody(material="water", min=(0, 0, 0), max=(TANK_W, TANK_DEPTH, TANK_Z))])

@@ -19,6 +19,9 @@ class SolverConfig:
     """m/s^2."""
     walls: dict | None = None
     """Face name ('x_min' ... 'z_max') -> (wall type, friction); missing faces: separate, 0."""
+    wall_images: bool = False
+    """Particles within 1.5 cells of a domain wall add the stress of their mirror images
+    beyond it (sim/wall_images.py): the wall holds up the first layers as the bulk does."""
     refine_factor: int | None = None
     """Refinement factor b of a block-sparse level-1 grid (adaptive mode), or None."""
     base_level: int = 0

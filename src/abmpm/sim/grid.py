@@ -70,6 +70,7 @@ class GridSpec:
     friction_hi: wp.vec3
     gravity: wp.vec3
     sparse: int
+    wall_images: int  # 1: particles near a wall add their images' stress (sim/wall_images.py)
     blocks: wp.array3d(dtype=wp.int32)  # block -> slot, -1 inactive (sparse only)
     slot_block: wp.array(dtype=wp.vec3i)  # slot -> block coordinates (sparse only)
 
@@ -209,7 +210,7 @@ class Grid:
 
     @staticmethod
     def create(domain_lo, domain_hi, dx: float, level: int, gravity, walls: dict, device,
-               sparse: bool = False, capacity_blocks: int = 64):
+               sparse: bool = False, capacity_blocks: int = 64, wall_images: bool = False):
         """Grid over the domain plus GRID_PAD cells; ``walls`` maps face names
         ('x_min', ...) to (type, friction)."""
         lo = np.asarray(domain_lo, dtype=np.float64)
@@ -230,6 +231,7 @@ class Grid:
         spec.friction_hi = wp.vec3(*[float(walls[f"{a}_max"][1]) for a in "xyz"])
         spec.gravity = wp.vec3(*gravity)
         spec.sparse = int(sparse)
+        spec.wall_images = int(wall_images)
         if sparse:
             bdims = tuple(-(-d // BLOCK) for d in dims)
             spec.blocks = wp.full(bdims, -1, dtype=wp.int32, device=device)

@@ -35,7 +35,7 @@ import functools
 import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
-from .footprint import footprint, footprint_weights, wider_than_a_cell
+from .footprint import MAX_HALF_WIDTH, footprint, footprint_weights, wider_than_a_cell
 from .grid import (
     AMONG_FINE,
     BLOCK_NODES,
@@ -55,6 +55,7 @@ from .parallel import EMPTY_BOUND, Reach, widen_reach
 from .state import ParticleArrays
 from .stencil import Stencil, dense_node_at, dense_stencil, offset_at, sparse_node_at, stencil_touches_active, weight_at
 from .variant import variant
+from .wall_images import REACH, near_a_wall, scatter_footprint_images, scatter_wall_images
 
 wp.set_module_options({"enable_backward": False})
 
@@ -65,7 +66,22 @@ EMPTY = wp.constant(EMPTY_BOUND)  # the low end of a span nothing reached yet
 def affine_momentum(s: ParticleArrays, p: int, g: GridSpec, dt: float, tau: wp.mat33):
     # MLS-MPM force folded into the affine momentum (Eqs. 9-10):
     # m_i v_i += w (m v_p + [m C_p - dt 4/dx^2 V0 tau] (x_i - x_p))
-    return (-dt * s.volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau + s.mass[p] * s.C[p]
+    return stress_momentum(s, p, g, dt, tau) + s.mass[p] * s.C[p]
+
+
+@wp.func
+def stress_momentum(s: ParticleArrays, p: int, g: GridSpec, dt: float, tau: wp.mat33):
+    # the stress part of affine_momentum, which a wall image adds (sim/wall_images.py)
+    return (-dt * s.volume[p] * 4.0 * g.inv_dx * g.inv_dx) * tau
+
+
+@wp.func
+def wall_images(s: ParticleArrays, p: int, g: GridSpec, st: Stencil, dt: float, tau: wp.mat33, mask: int,
+                grid_mv: wp.array(dtype=wp.vec3)):
+    # the particle's mirror images across the walls within its reach
+    if g.wall_images != 0:
+        if near_a_wall(g, s.x[p], REACH):
+            scatter_wall_images(g, st, s.x[p], stress_momentum(s, p, g, dt, tau), tau, mask, grid_mv)
 
 
 @wp.func
@@ -150,6 +166,7 @@ def _make_p2g_dense(cpic: bool, models: tuple[int, ...]):
                         weight = weight * node_bit(mask, i, j, k)
                     scatter(grid_mv, grid_m, dense_node_at(g, st, i, j, k), weight, mv, affine,
                             offset_at(g, st, i, j, k), s.mass[p])
+        wall_images(s, p, g, st, dt_now[0], tau, mask, grid_mv)
 
     return p2g_dense
 
@@ -185,6 +202,7 @@ def _make_p2g_level0(cpic: bool, models: tuple[int, ...]):
                     if wp.static(cpic):
                         weight = weight * node_bit(mask, i, j, k)
                     scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+        wall_images(s, p, g, st, dt_now[0], tau, mask, grid_mv)
 
     return p2g_level0
 
@@ -223,17 +241,20 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
                 mask = nodes_facing(s.x[p], color, g, st.base, st.fx)
         record_reach(g, st, reach)
         mv = s.mass[p] * s.v[p]
+        reached = int(0)  # the stencil's nodes in the overlap, for the wall images
         for i in range(3):
             for j in range(3):
                 for k in range(3):
                     n = dense_node_at(g, st, i, j, k)
                     if overlap[n] != 0 or mover == 0:
+                        reached = reached | (1 << (9 * i + 3 * j + k))
                         weight = weight_at(st, i, j, k)
                         if wp.static(cpic):
                             weight = weight * node_bit(mask, i, j, k)
                         if weight > 0.0 and overlap[n] != HOLDS_LEVEL1:  # a write only when it changes
                             overlap[n] = HOLDS_LEVEL1
                         scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+        wall_images(s, p, g, st, dt_now[0], tau, mask & reached, grid_mv)
 
     return p2g_overlap
 
@@ -277,6 +298,13 @@ def _make_scatter_footprint(cpic: bool):
                             scatter(grid_mv, grid_m, n, weight, mv, affine, dpos, s.mass[p])
                             lo = wp.min(lo, n)
                             hi = wp.max(hi, n)
+        if g.wall_images != 0 and near_a_wall(g, xp, REACH + MAX_HALF_WIDTH):
+            # its images' stress (sim/wall_images.py); in a collider's band only a point's
+            images = True
+            if wp.static(cpic):
+                images = s.surface_body[p] < 0
+            if images:
+                scatter_footprint_images(g, fp, xp, (-dt * s.volume[p]) * (fp.inertia_inv * tau), tau, grid_mv)
         widen_reach(reach, lo, hi)
         return whole
 
@@ -331,6 +359,7 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
                         if wp.static(cpic):
                             weight = weight * node_bit(mask, i, j, k)
                         scatter(grid_mv, grid_m, n, weight, mv, affine, offset_at(g, st, i, j, k), s.mass[p])
+        wall_images(s, p, g, st, dt_now[0], tau_store[p], mask, grid_mv)
 
     return p2g_sparse
 

@@ -72,11 +72,12 @@ class MPMSolver:
         self.models = model_ids(materials)
         walls = {f: (config.walls or {}).get(f, ("separate", 0.0)) for f in FACES}
         common = (config.domain_lo, config.domain_hi)
-        self.grids = [Grid.create(*common, config.dx, config.base_level, config.gravity, walls, device)]
+        self.grids = [Grid.create(*common, config.dx, config.base_level, config.gravity, walls, device,
+                                  wall_images=config.wall_images)]
         self.refiner = None
         if config.refine_factor:
             fine = Grid.create(*common, config.dx / config.refine_factor, 1, config.gravity, walls, device,
-                               sparse=True)
+                               sparse=True, wall_images=config.wall_images)
             self.grids.append(fine)
             self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device,
                                    config.reconstruct, config.surface_threshold, self.launcher)
