@@ -91,6 +91,29 @@ def reflect_stress(stress: wp.mat33, R: wp.vec3):
 
 
 @wp.func
+def image_axes(sides: wp.vec3i, image: int):
+    # the reflection of image number ``image`` (bits 0-2: the axes it is reflected in): -1
+    # on a reflected axis, 1 elsewhere; all 0 where it asks for an axis with no wall in reach
+    R = wp.vec3(1.0)
+    for d in range(3):
+        if (image >> d) & 1 != 0:
+            if sides[d] == 0:
+                return wp.vec3(0.0)
+            R[d] = -1.0
+    return R
+
+
+@wp.func
+def image_position(g: GridSpec, xp: wp.vec3, R: wp.vec3, sides: wp.vec3i):
+    # xp reflected in the wall planes of the axes R reflects
+    xi = xp
+    for d in range(3):
+        if R[d] < 0.0:
+            xi[d] = 2.0 * wp.where(sides[d] < 0, g.domain_lo[d], g.domain_hi[d]) - xp[d]
+    return xi
+
+
+@wp.func
 def inside_reflected(g: GridSpec, x_node: wp.vec3, R: wp.vec3, sides: wp.vec3i):
     # the node lies inside the domain across every wall the image is reflected in (a
     # node on a wall plane belongs to the wall, whose condition overwrites it)
@@ -116,18 +139,9 @@ def scatter_wall_images(g: GridSpec, st: Stencil, xp: wp.vec3, stress: wp.mat33,
     if sides[0] == 0 and sides[1] == 0 and sides[2] == 0:
         return
     for image in range(1, 8):  # a non-empty subset of the axes to reflect
-        ok = True
-        R = wp.vec3(1.0)
-        xi = xp
-        for d in range(3):
-            if (image >> d) & 1 != 0:
-                if sides[d] == 0:
-                    ok = False
-                else:
-                    R[d] = -1.0
-                    wall = wp.where(sides[d] < 0, g.domain_lo[d], g.domain_hi[d])
-                    xi[d] = 2.0 * wall - xp[d]
-        if ok:
+        R = image_axes(sides, image)
+        if R[0] != 0.0:
+            xi = image_position(g, xp, R, sides)
             reflected = reflect_stress(stress, R)
             for i in range(3):
                 for j in range(3):
@@ -153,20 +167,10 @@ def scatter_footprint_images(g: GridSpec, fp: Footprint, xp: wp.vec3, stress: wp
     sides = wall_sides(g, xp, tau, REACH + wp.max(fp.a))
     if sides[0] == 0 and sides[1] == 0 and sides[2] == 0:
         return
-    X = (xp - g.origin) * g.inv_dx
     for image in range(1, 8):
-        ok = True
-        R = wp.vec3(1.0)
-        Xi = X
-        for d in range(3):
-            if (image >> d) & 1 != 0:
-                if sides[d] == 0:
-                    ok = False
-                else:
-                    R[d] = -1.0
-                    wall = wp.where(sides[d] < 0, g.domain_lo[d], g.domain_hi[d])
-                    Xi[d] = 2.0 * (wall - g.origin[d]) * g.inv_dx - X[d]
-        if ok:
+        R = image_axes(sides, image)
+        if R[0] != 0.0:
+            Xi = (image_position(g, xp, R, sides) - g.origin) * g.inv_dx
             reflected = reflect_stress(stress, R)
             wx = box_weights(Xi[0], fp.a[0], fp.base[0])
             wy = box_weights(Xi[1], fp.a[1], fp.base[1])
