@@ -42,6 +42,10 @@ from .stencil import Stencil
 wp.set_module_options({"enable_backward": False})
 
 REACH = wp.constant(1.5)  # cells: the quadratic B-spline's support radius
+# the images' loops run with these as run-time values, so that Warp does not unroll them
+# (7 images x 27 nodes unrolled made NVRTC's build of every P2G pass take minutes)
+IMAGES = 8  # image 0 is the particle itself
+STENCIL_NODES = 27
 
 
 @wp.func
@@ -138,24 +142,24 @@ def scatter_wall_images(g: GridSpec, st: Stencil, xp: wp.vec3, stress: wp.mat33,
     sides = wall_sides(g, xp, tau, REACH)
     if sides[0] == 0 and sides[1] == 0 and sides[2] == 0:
         return
-    for image in range(1, 8):  # a non-empty subset of the axes to reflect
+    images = int(IMAGES)
+    nodes = int(STENCIL_NODES)
+    for image in range(1, images):  # a non-empty subset of the axes to reflect
         R = image_axes(sides, image)
         if R[0] != 0.0:
             xi = image_position(g, xp, R, sides)
             reflected = reflect_stress(stress, R)
-            for i in range(3):
-                for j in range(3):
-                    for k in range(3):
-                        c = st.base + wp.vec3i(i, j, k)
-                        x_node = node_position(g, c)
-                        if (mask >> (9 * i + 3 * j + k)) & 1 != 0 and inside_reflected(g, x_node, R, sides):
-                            dpos = x_node - xi
-                            r = dpos * g.inv_dx
-                            weight = bspline(r[0]) * bspline(r[1]) * bspline(r[2])
-                            if weight > 0.0:
-                                n = node_index(g, c[0], c[1], c[2])
-                                if n >= 0:
-                                    wp.atomic_add(grid_mv, n, weight * (reflected * dpos))
+            for q in range(nodes):  # stencil node (i, j, k) = (q / 9, q / 3 % 3, q % 3), CPIC bit q
+                c = st.base + wp.vec3i(q // 9, (q // 3) % 3, q % 3)
+                x_node = node_position(g, c)
+                if (mask >> q) & 1 != 0 and inside_reflected(g, x_node, R, sides):
+                    dpos = x_node - xi
+                    r = dpos * g.inv_dx
+                    weight = bspline(r[0]) * bspline(r[1]) * bspline(r[2])
+                    if weight > 0.0:
+                        n = node_index(g, c[0], c[1], c[2])
+                        if n >= 0:
+                            wp.atomic_add(grid_mv, n, weight * (reflected * dpos))
 
 
 @wp.func
@@ -167,7 +171,8 @@ def scatter_footprint_images(g: GridSpec, fp: Footprint, xp: wp.vec3, stress: wp
     sides = wall_sides(g, xp, tau, REACH + wp.max(fp.a))
     if sides[0] == 0 and sides[1] == 0 and sides[2] == 0:
         return
-    for image in range(1, 8):
+    images = int(IMAGES)
+    for image in range(1, images):
         R = image_axes(sides, image)
         if R[0] != 0.0:
             Xi = (image_position(g, xp, R, sides) - g.origin) * g.inv_dx
