@@ -19,6 +19,9 @@ With colliders, a particle scatters only to the nodes on its side of every surfa
                        as its box (``sim/footprint.py``)
 =====================  =========================================================
 
+With ``walls.images`` every pass adds, for a particle within reach of a domain wall, its
+mirror images' stress (``sim/wall_images.py``).
+
 The stress is evaluated once per step: the two coarse passes keep it per particle,
 the fine pass reads it back. Each pass is compiled for CPIC or not and for the
 scene's material models (``sim/variant.py``).
@@ -299,7 +302,8 @@ def _make_scatter_footprint(cpic: bool):
                             lo = wp.min(lo, n)
                             hi = wp.max(hi, n)
         if g.wall_images != 0 and near_a_wall(g, xp, REACH + MAX_HALF_WIDTH):
-            # its images' stress (sim/wall_images.py); in a collider's band only a point's
+            # its images' stress (sim/wall_images.py), not in a collider's band: there each
+            # footprint node passes CPIC's test of its own, which the images do not repeat
             images = True
             if wp.static(cpic):
                 images = s.surface_body[p] < 0
