@@ -278,7 +278,8 @@ def _make_scatter_footprint(cpic: bool):
         if wp.max(slots) < 0:
             return False
         fp = footprint_weights(g, xp, fp)
-        affine = (-dt * s.volume[p]) * (fp.inertia_inv * tau) + s.mass[p] * s.C[p]
+        stress = (-dt * s.volume[p]) * (fp.inertia_inv * tau)  # Eq. 10 with this kernel's inertia
+        affine = stress + s.mass[p] * s.C[p]
         mv = s.mass[p] * s.v[p]
         lo = EMPTY
         hi = int(-1)
@@ -308,7 +309,7 @@ def _make_scatter_footprint(cpic: bool):
             if wp.static(cpic):
                 images = s.surface_body[p] < 0
             if images:
-                scatter_footprint_images(g, fp, xp, (-dt * s.volume[p]) * (fp.inertia_inv * tau), tau, grid_mv)
+                scatter_footprint_images(g, fp, xp, stress, tau, grid_mv)
         widen_reach(reach, lo, hi)
         return whole
 

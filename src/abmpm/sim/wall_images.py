@@ -37,7 +37,7 @@ import warp as wp
 from .boundary import BOUNDARY_SEPARATE
 from .footprint import Footprint, box_weights
 from .grid import GridSpec, node_index, node_position
-from .stencil import Stencil
+from .stencil import Stencil, weight_at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -57,6 +57,17 @@ def bspline(r: float):
     if a < 1.5:
         return 0.5 * (1.5 - a) * (1.5 - a)
     return 0.0
+
+
+@wp.func
+def image_weights(g: GridSpec, base: wp.vec3i, xi: wp.vec3):
+    # N of the stencil's nodes base + q seen from an image at xi, laid out as Stencil.w (rows:
+    # node offset q, columns: axis); once per image, not per node
+    w = wp.mat33(0.0)
+    for q in range(3):
+        for d in range(3):
+            w[q, d] = bspline((g.origin[d] + float(base[d] + q) * g.dx - xi[d]) * g.inv_dx)
+    return w
 
 
 @wp.func
@@ -149,13 +160,15 @@ def scatter_wall_images(g: GridSpec, st: Stencil, xp: wp.vec3, stress: wp.mat33,
         if R[0] != 0.0:
             xi = image_position(g, xp, R, sides)
             reflected = reflect_stress(stress, R)
+            image_st = st  # the particle's stencil nodes, with the image's weights
+            image_st.w = image_weights(g, st.base, xi)
             for q in range(nodes):  # stencil node (i, j, k) = (q / 9, q / 3 % 3, q % 3), CPIC bit q
-                c = st.base + wp.vec3i(q // 9, (q // 3) % 3, q % 3)
+                ijk = wp.vec3i(q // 9, (q // 3) % 3, q % 3)
+                c = st.base + ijk
                 x_node = node_position(g, c)
                 if (mask >> q) & 1 != 0 and inside_reflected(g, x_node, R, sides):
                     dpos = x_node - xi
-                    r = dpos * g.inv_dx
-                    weight = bspline(r[0]) * bspline(r[1]) * bspline(r[2])
+                    weight = weight_at(image_st, ijk[0], ijk[1], ijk[2])
                     if weight > 0.0:
                         n = node_index(g, c[0], c[1], c[2])
                         if n >= 0:
