@@ -1,31 +1,33 @@
-"""A level-0 particle on the fine grid: its footprint, not a point (adaptive mode).
+"""A level-0 particle on the fine grid: its family's footprint, not a point (adaptive mode).
 
-A coarse particle stands for a box of material one parent lattice spacing h wide. The
-coarse grid sees it through the quadratic B-spline of spacing dx, wide enough for its
-size. The fine grid (spacing dx/b) is b times finer: seen there as a point, a coarse
-particle is one sample per h^3 = (b/2)^3 fine cells (8 particles per cell), so at
-b = 4 the fine nodes between two coarse particles get, per axis, a third of the
-mass and volume of the nodes on them, and the stress of Eq. 10 pushes on those lumps. Level-1
-particles next to the level interface read that lumpy field (their J scattered up to
-0.15 from hydrostatic in a tank at rest at b = 4; docs/method.md, "The level
-interface against finest").
+A coarse particle stands for a box of material one parent lattice spacing h wide, the
+box its b^3 children fill when it splits (Eq. 15: a regular sub-lattice, h/b apart).
+The coarse grid sees it through the quadratic B-spline of spacing dx, wide enough for
+its size. The fine grid (spacing dx/b) is b times finer: seen there as a point, a
+coarse particle is one sample per h^3 = (b/2)^3 fine cells (8 particles per cell), so
+at b = 4 the fine nodes between two coarse particles get, per axis, a third of the
+mass and volume of the nodes on them, and the stress of Eq. 10 pushes on those lumps.
 
-Here the particle's mass is spread over its box instead: the weight of fine node i is
-the quadratic B-spline averaged over the box,
+Here it is seen as the family it would split into: per axis the weight of fine node i
+and the stress's weight are the means over the family's b child offsets o_c,
 
-    W(r) = 1/(2a) * integral_{-a}^{a} N(r - s) ds = (M(r + a) - M(r - a)) / (2a),
+    W(r) = mean_c N(r - o_c),      G(r) = mean_c 4 (r - o_c) N(r - o_c),
 
-per axis, with r = (x_i - x_p)/dx' and a = h / (2 dx') the box's half-width in fine
-cells (b/4 at 8 particles per cell; capped at 1 so that the footprint stays within
-5 nodes per axis), M the integral of N. Like N, W sums to 1 and has zero first moment
-at any position (momentum and affine momentum are transferred exactly), and the
-footprints of a lattice of boxes tile space: their volume field is uniform on the
-fine grid for every b. Its second moment is (1/4 + a^2/3) dx'^2 per axis (N's 1/4
-plus the box's variance), the inertia D of MLS-MPM (Eq. 10) that the stress uses in
-place of the point kernel's dx'^2/4. At b = 2 (a = 1/2) points one cell apart already
-sum to 1, so only a particle in a collider's band next to the region takes its box there,
-the kernel the fine grid moves it with (``p2g_sparse``; docs/method.md, "The contact
-band's ties, and the band rule at b = 2").
+with r = (x_i - x_p)/dx' and o_c = (c + 1/2 - b/2) h/(b dx') (fine cells). A node's
+weight is W_x W_y W_z, and its stress vector (Eq. 10's D^-1 (x_i - x_p) w_ip of each
+child, summed over the family) (G_x W_y W_z, W_x G_y W_z, W_x W_y G_z) / dx'. So a coarse
+particle puts on the fine grid exactly the mass, momentum (its children's velocities
+v + C o_c, Eq. 15) and stress its family would: at the level interface and next to a
+wall a lattice of coarse particles and the children beside them give every fine node the
+volume and the zero net force of the same material sampled fine (`tests/test_footprint.py`).
+(A coarse particle as a point, as at b = 2 until 2026-11-29, leaves a net force of
+0.16 p dx'^2 under a uniform pressure p on the fine node at the level interface, which
+in a tank at rest pushed the children along the floor into the coarse half at 15 m/s^2
+in the first step; the box average of N with its MLS inertia, used at b = 3 and 4 until
+then, 0.014 p dx'^2 at the interface at b = 4 and 0.07 on every other node of the boxes
+at b = 3: docs/method.md, "A coarse particle on the fine grid as its family".) In G2P
+the same weights give v = sum_i W_i v_i and C = sum_i v_i g_i^T, the mean of the
+children's (the transpose of the stress's weights, as MLS-MPM pairs them).
 """
 
 from __future__ import annotations
@@ -33,102 +35,78 @@ from __future__ import annotations
 import warp as wp
 
 from .grid import GridSpec
+from .stencil import bspline
 
 wp.set_module_options({"enable_backward": False})
 
-FOOTPRINT_NODES = 5  # nodes per axis of a footprint of half-width a <= 1 fine cell
-MAX_HALF_WIDTH = 1.0  # fine cells
-# fine nodes a footprint reaches past its particle's fine cell: 2 (a <= 1: nodes from
-# floor(X - a - 1.5) + 1 on), and one for round-off in X
+FOOTPRINT_NODES = 5  # nodes per axis a footprint spans at most (offsets up to MAX_HALF_WIDTH)
+MAX_HALF_WIDTH = 1.0  # fine cells: the outermost child's offset (b <= 5 at 8 particles per cell)
+# fine nodes a footprint reaches past its particle's fine cell: 2 (offsets <= 1 cell: nodes
+# from floor(X - 2.5) + 1 on), and one for round-off in X
 FOOTPRINT_REACH = 3
-WIDER_VOLUME = wp.constant(1.002**3)  # a box's volume over a cell's beyond which it is wider (round-off)
 vec5 = wp.types.vector(length=FOOTPRINT_NODES, dtype=float)
 
 
 @wp.struct
 class Footprint:
-    base: wp.vec3i  # lowest node of the 5x5x5 footprint
-    wx: vec5  # weights per axis: node base + q along x, y, z
+    base: wp.vec3i  # lowest node of the footprint
+    wx: vec5  # W per axis: node base + q along x, y, z
     wy: vec5
     wz: vec5
-    nodes: int  # FOOTPRINT_NODES, as a run-time value: loops over it are not unrolled
-    a: wp.vec3  # the box's half-width per axis, fine cells (cut at a domain wall's plane)
-    inertia_inv: wp.mat33  # D^-1 of MLS-MPM for this kernel, 1/m^2 (4/dx^2 I for a point)
+    gx: vec5  # G per axis (module docstring), in fine cells^-1 times a cell
+    gy: vec5
+    gz: vec5
+    nodes: int  # nodes per axis, a run-time value: loops over it are not unrolled
+    children: int  # the family's children per axis (b)
+    pitch: float  # their spacing, fine cells
+    reach: float  # the outermost child's offset, fine cells
 
 
 @wp.func
-def spline_integral(t: float):
-    # M(t): the quadratic B-spline N integrated from -infinity to t (piecewise cubic)
-    if t <= -1.5:
-        return 0.0
-    if t <= -0.5:
-        u = t + 1.5
-        return u * u * u / 6.0
-    if t <= 0.5:
-        return 1.0 / 6.0 + 0.75 * (t + 0.5) - (t * t * t + 0.125) / 3.0
-    if t < 1.5:
-        u = 1.5 - t
-        return 1.0 - u * u * u / 6.0
-    return 1.0
-
-
-@wp.func
-def box_weights(X: float, a: float, lo: int):
-    # W(k - X) of nodes k = lo .. lo + 4 (module docstring)
+def family_weights(X: float, lo: int, children: int, pitch: float):
+    # W(k - X) and G(k - X) of nodes k = lo .. lo + 4 (module docstring)
     w = vec5()
+    gr = vec5()
     nodes = int(FOOTPRINT_NODES)  # a loop Warp does not unroll (compile time)
+    inv = 1.0 / float(children)
     for q in range(nodes):
-        r = float(lo + q) - X
-        w[q] = (spline_integral(r + a) - spline_integral(r - a)) / (2.0 * a)
-    return w
+        sw = float(0.0)
+        sg = float(0.0)
+        for c in range(children):
+            r = float(lo + q) - X - (float(c) + 0.5 - 0.5 * float(children)) * pitch
+            n = bspline(r)
+            sw += n
+            sg += 4.0 * r * n
+        w[q] = sw * inv
+        gr[q] = sg * inv
+    return w, gr
 
 
 @wp.func
-def footprint_base(X: float, a: float, dim: int):
-    # the first node with a nonzero weight, k > X - a - 1.5; clamped to the grid like
+def footprint_base(X: float, reach: float, dim: int):
+    # the first node with a nonzero weight, k > X - reach - 1.5; clamped to the grid like
     # stencil_base (only a particle flung out of the domain is ever clamped)
-    return wp.clamp(int(wp.floor(X - a - 1.5)) + 1, 0, dim - FOOTPRINT_NODES)
-
-
-@wp.func
-def half_width(a: float, X: float, lo: float, hi: float):
-    # Next to a domain wall the box is cut at the wall plane, where the material it
-    # stands for ends: boxes that tile the material up to the wall then give the fine
-    # nodes along it the volume that the same material sampled fine gives them. (Cut
-    # half a cell inside the plane, as until 2026-11-29, they gave the second node
-    # from the wall 1.35 and the third 0.83 of a cell's volume at b = 4.) The footprint
-    # then reaches one node past the plane, as a fine particle within half a cell of
-    # the wall does.
-    return wp.clamp(wp.min(X - lo, hi - X), 1.0e-3, a)
-
-
-@wp.func
-def wider_than_a_cell(g: GridSpec, volume: float):
-    # Points sampled at most one cell apart sum to 1 within 2% under the
-    # quadratic B-spline (at exactly one cell, as b = 2 gives at 8 particles per cell,
-    # exactly); two cells apart (b = 4) the sum swings between 0.5 and 1.5. So only
-    # a box wider than a cell (by more than round-off, 0.2%) needs its footprint.
-    return volume > WIDER_VOLUME * g.dx * g.dx * g.dx
+    return wp.clamp(int(wp.floor(X - reach - 1.5)) + 1, 0, dim - FOOTPRINT_NODES)
 
 
 @wp.func
 def footprint(g: GridSpec, x: wp.vec3, volume: float):
     """Where the footprint on grid ``g`` of a particle at ``x`` whose box has ``volume``
-    lies, and its inertia: cheap, so that a particle far from the grid's active blocks
-    can be left before ``footprint_weights``."""
-    a = wp.min(0.5 * wp.pow(volume, 1.0 / 3.0) * g.inv_dx, MAX_HALF_WIDTH)
-    X = (x - g.origin) * g.inv_dx
-    lo = (g.domain_lo - g.origin) * g.inv_dx
-    hi = (g.domain_hi - g.origin) * g.inv_dx
+    lies: cheap, so that a particle far from the grid's active blocks can be left before
+    ``footprint_weights``."""
     fp = Footprint()
-    fp.nodes = FOOTPRINT_NODES
-    fp.a = wp.vec3(half_width(a, X[0], lo[0], hi[0]), half_width(a, X[1], lo[1], hi[1]),
-                   half_width(a, X[2], lo[2], hi[2]))
-    fp.base = wp.vec3i(footprint_base(X[0], fp.a[0], g.dims[0]), footprint_base(X[1], fp.a[1], g.dims[1]),
-                       footprint_base(X[2], fp.a[2], g.dims[2]))
-    s = g.inv_dx * g.inv_dx
-    fp.inertia_inv = wp.diag(wp.vec3(s / (0.25 + fp.a[0] * fp.a[0] / 3.0), s / (0.25 + fp.a[1] * fp.a[1] / 3.0),
-                                      s / (0.25 + fp.a[2] * fp.a[2] / 3.0)))
+    fp.children = wp.max(g.family, 1)
+    h = wp.pow(volume, 1.0 / 3.0) * g.inv_dx  # the parent's spacing, fine cells
+    fp.pitch = h / float(fp.children)
+    fp.reach = 0.5 * float(fp.children - 1) * fp.pitch
+    if fp.reach > MAX_HALF_WIDTH:  # a family wider than 5 nodes: squeezed (never at b <= 5)
+        fp.pitch = fp.pitch * MAX_HALF_WIDTH / fp.reach
+        fp.reach = MAX_HALF_WIDTH
+    # nodes strictly within reach + 1.5 of X: at most ceil(2 (reach + 1.5))
+    fp.nodes = wp.min(int(wp.ceil(2.0 * (fp.reach + 1.5) - 1.0e-4)), FOOTPRINT_NODES)
+    X = (x - g.origin) * g.inv_dx
+    fp.base = wp.vec3i(footprint_base(X[0], fp.reach, g.dims[0]), footprint_base(X[1], fp.reach, g.dims[1]),
+                       footprint_base(X[2], fp.reach, g.dims[2]))
     return fp
 
 
@@ -137,7 +115,20 @@ def footprint_weights(g: GridSpec, x: wp.vec3, fp: Footprint):
     """``fp`` with the weights of its nodes (module docstring)."""
     X = (x - g.origin) * g.inv_dx
     out = fp
-    out.wx = box_weights(X[0], fp.a[0], fp.base[0])
-    out.wy = box_weights(X[1], fp.a[1], fp.base[1])
-    out.wz = box_weights(X[2], fp.a[2], fp.base[2])
+    wx, gx = family_weights(X[0], fp.base[0], fp.children, fp.pitch)
+    wy, gy = family_weights(X[1], fp.base[1], fp.children, fp.pitch)
+    wz, gz = family_weights(X[2], fp.base[2], fp.children, fp.pitch)
+    out.wx = wx
+    out.wy = wy
+    out.wz = wz
+    out.gx = gx
+    out.gy = gy
+    out.gz = gz
     return out
+
+
+@wp.func
+def stress_weight(fp: Footprint, i: int, j: int, k: int, inv_dx: float):
+    # node (i, j, k)'s stress vector: the family's sum of D^-1 (x_i - x_c) N (Eq. 10), 1/m
+    return inv_dx * wp.vec3(fp.gx[i] * fp.wy[j] * fp.wz[k], fp.wx[i] * fp.gy[j] * fp.wz[k],
+                            fp.wx[i] * fp.wy[j] * fp.gz[k])

@@ -3,9 +3,9 @@
 A particle gathers velocity and its affine matrix from its own level's grid (Eqs.
 11-12): ``g2p_dense`` on the coarse grid (or the single grid of the original and
 finest modes), ``g2p_sparse`` on the fine block-sparse grid. Beyond the paper, a
-level-0 particle in a collider's band whose box lies whole in active fine blocks
-(``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its box as
-the kernel (``gather_box``; docs/method.md, "Coarse particles in a collider's band
+level-0 particle in a collider's band whose footprint lies whole in active fine blocks
+(``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its family's
+footprint as the kernel (``gather_footprint``, sim/footprint.py; docs/method.md, "Coarse particles in a collider's band
 move with the fine grid"), and keeps its own grid's band and colors; so does one
 whose coarse cell holds mostly level-1 mass (``Refiner.coarse_children``). The other
 way round, a child among coarse particles away from the region (marked ON_COARSE)
@@ -36,7 +36,7 @@ from .colliders import (
     rigid_velocity,
     stop_crossing,
 )
-from .footprint import footprint, footprint_weights
+from .footprint import footprint, footprint_weights, stress_weight
 from .grid import GridSpec, moving_level, node_index, node_position, stencil_node, stencil_slots
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .node_color import NEEDS_QUERY, NODE_COLOR_TOL, color_from_nodes, query_color
@@ -123,12 +123,12 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, s
     return x_end, v_end, c
 
 
-def _make_gather_box(cpic: bool):
+def _make_gather_footprint(cpic: bool):
     @wp.func
-    def gather_box(g: GridSpec, colliders: ColliderArrays, color: ColorField, grid_v: wp.array(dtype=wp.vec3),
+    def gather_footprint(g: GridSpec, colliders: ColliderArrays, color: ColorField, grid_v: wp.array(dtype=wp.vec3),
                    s: ParticleArrays, p: int, dt: float):
         """Eqs. 5-6 for a level-0 particle on the fine grid with the kernel it scattered
-        with there, its box (``sim/footprint.py``), and that kernel's inertia. Every node
+        with there, its family's (``sim/footprint.py``): v and C its children's mean. Every node
         of its footprint is active (``p2g_sparse`` says so); an incompatible node lends
         the particle's boundary velocity (Eqs. 23-25). Returns (v, C)."""
         xp = s.x[p]
@@ -140,7 +140,7 @@ def _make_gather_box(cpic: bool):
             if cb >= 0:
                 v_bar = boundary_velocity(colliders, cb, s.surface_side[p], xp, s.v[p] + dt * g.gravity)
         v = wp.vec3(0.0)
-        B = wp.mat33(0.0)
+        C = wp.mat33(0.0)
         for i in range(fp.nodes):
             for j in range(fp.nodes):
                 for k in range(fp.nodes):
@@ -153,17 +153,17 @@ def _make_gather_box(cpic: bool):
                             if not compatible(s.surface_point[p], s.surface_side[p], cb, xp, color, xp + dpos, n, g.dx):
                                 vi = v_bar
                         v += weight * vi
-                        B += weight * wp.outer(vi, dpos)
-        return v, B * fp.inertia_inv
+                        C += wp.outer(vi, stress_weight(fp, i, j, k, g.inv_dx))
+        return v, C
 
-    return gather_box
+    return gather_footprint
 
 
 def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
     ops = dispatch(models)
     deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
     stencil, node_at = STORAGE[sparse]
-    gather_box = _make_gather_box(cpic)
+    gather_footprint = _make_gather_footprint(cpic)
 
     @variant("g2p_sparse" if sparse else "g2p_dense", cpic, models=models)
     def g2p(
@@ -192,7 +192,7 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         new_v = wp.vec3(0.0)
         new_C = wp.mat33(0.0)
         if level0_here:  # with its box, the kernel it scattered with here
-            new_v, new_C = wp.static(gather_box)(g, colliders, color, grid_v, s, p, dt)
+            new_v, new_C = wp.static(gather_footprint)(g, colliders, color, grid_v, s, p, dt)
         else:
             st = wp.static(stencil)(g, xp)
             B = wp.mat33(0.0)

@@ -71,6 +71,7 @@ class GridSpec:
     gravity: wp.vec3
     sparse: int
     wall_images: int  # 1: particles near a wall add their images' stress (sim/wall_images.py)
+    family: int  # children per axis of a split (b) on the fine grid, 1 on the coarse (sim/footprint.py)
     blocks: wp.array3d(dtype=wp.int32)  # block -> slot, -1 inactive (sparse only)
     slot_block: wp.array(dtype=wp.vec3i)  # slot -> block coordinates (sparse only)
 
@@ -210,7 +211,7 @@ class Grid:
 
     @staticmethod
     def create(domain_lo, domain_hi, dx: float, level: int, gravity, walls: dict, device,
-               sparse: bool = False, capacity_blocks: int = 64, wall_images: bool = False):
+               sparse: bool = False, capacity_blocks: int = 64, wall_images: bool = False, family: int = 1):
         """Grid over the domain plus GRID_PAD cells; ``walls`` maps face names
         ('x_min', ...) to (type, friction)."""
         lo = np.asarray(domain_lo, dtype=np.float64)
@@ -232,6 +233,7 @@ class Grid:
         spec.gravity = wp.vec3(*gravity)
         spec.sparse = int(sparse)
         spec.wall_images = int(wall_images)
+        spec.family = int(family)
         if sparse:
             bdims = tuple(-(-d // BLOCK) for d in dims)
             spec.blocks = wp.full(bdims, -1, dtype=wp.int32, device=device)

@@ -38,7 +38,7 @@ import functools
 import warp as wp
 
 from .colliders import ALL_NODES, ColorField, compatibility_mask, compatible, near_surface, node_bit, nodes_facing
-from .footprint import MAX_HALF_WIDTH, footprint, footprint_weights, wider_than_a_cell
+from .footprint import MAX_HALF_WIDTH, footprint, footprint_weights, stress_weight
 from .grid import (
     AMONG_FINE,
     BLOCK_NODES,
@@ -266,10 +266,10 @@ def _make_scatter_footprint(cpic: bool):
     @wp.func
     def scatter_footprint(s: ParticleArrays, p: int, g: GridSpec, color: ColorField, dt: float, tau: wp.mat33,
                           grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach):
-        # A level-0 particle onto the fine grid: Eq. 8 with its footprint's weights
-        # (sim/footprint.py) and the MLS inertia of that kernel in Eq. 10. CPIC node by
-        # node: the particle's color is the exact closest point, on any grid. Returns
-        # whether every node of the footprint is active.
+        # A level-0 particle onto the fine grid as the family it would split into (sim/footprint.py):
+        # Eq. 8's mass and momentum with the family's weights, Eq. 10's stress with the sum of
+        # its children's. CPIC node by node: the particle's color is the exact closest
+        # point, on any grid. Returns whether every node of the footprint is active.
         xp = s.x[p]
         fp = footprint(g, xp, s.volume[p])
         # its 5 nodes per axis lie in the 2 blocks per axis a 3x3x3 stencil at the same
@@ -278,8 +278,8 @@ def _make_scatter_footprint(cpic: bool):
         if wp.max(slots) < 0:
             return False
         fp = footprint_weights(g, xp, fp)
-        stress = (-dt * s.volume[p]) * (fp.inertia_inv * tau)  # Eq. 10 with this kernel's inertia
-        affine = stress + s.mass[p] * s.C[p]
+        stress = (-dt * s.volume[p]) * tau  # Eq. 10, times each node's stress weight
+        affine = s.mass[p] * s.C[p]
         mv = s.mass[p] * s.v[p]
         lo = EMPTY
         hi = int(-1)
@@ -299,7 +299,9 @@ def _make_scatter_footprint(cpic: bool):
                             ok = compatible(s.surface_point[p], s.surface_side[p], s.surface_body[p], xp, color,
                                             xp + dpos, n, g.dx)
                         if ok:
-                            scatter(grid_mv, grid_m, n, weight, mv, affine, dpos, s.mass[p])
+                            wp.atomic_add(grid_mv, n, weight * (mv + affine * dpos)
+                                          + stress * stress_weight(fp, i, j, k, g.inv_dx))
+                            wp.atomic_add(grid_m, n, weight * s.mass[p])
                             lo = wp.min(lo, n)
                             hi = wp.max(hi, n)
         if g.wall_images != 0 and near_a_wall(g, xp, REACH + MAX_HALF_WIDTH):
@@ -333,16 +335,14 @@ def _make_p2g_sparse(cpic: bool, models: tuple[int, ...]):
             # collider is then the fine grid's, like the level-1 material it meets there
             # (docs/method.md, "Coarse particles in a collider's band move with the fine grid");
             # so is one among children (AMONG_FINE: its coarse cell holds mostly level-1 mass).
-            # It is its box here where the box is wider than a fine cell (b >= 3), and those two
-            # at b = 2 too, where g2p_sparse gathers them with that kernel; every other level-0
-            # particle is a point and left to the coarse grid (the mark's 1 bit set afresh)
+            # Every level-0 particle is its family's footprint here (sim/footprint.py), which
+            # g2p_sparse gathers those two with; every other one is left to the coarse grid
+            # (the mark's 1 bit set afresh)
             band_beside = s.surface_body[p] >= 0 and cell_flag(coarse, beside, s.x[p]) != 0
             among = on_fine[p] & AMONG_FINE  # Refiner.coarse_children, this substep
-            on_fine[p] = among
-            if band_beside or among != 0 or wider_than_a_cell(g, s.volume[p]):
-                whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
-                on_fine[p] = among | wp.where(whole and (band_beside or among != 0), 1, 0)
-                return
+            whole = scatter_footprint(s, p, g, color, dt_now[0], tau_store[p], grid_mv, grid_m, reach)
+            on_fine[p] = among | wp.where(whole and (band_beside or among != 0), 1, 0)
+            return
         st = dense_stencil(g, s.x[p])
         if not stencil_touches_active(g, st.base):
             return

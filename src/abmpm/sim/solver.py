@@ -77,7 +77,7 @@ class MPMSolver:
         self.refiner = None
         if config.refine_factor:
             fine = Grid.create(*common, config.dx / config.refine_factor, 1, config.gravity, walls, device,
-                               sparse=True, wall_images=config.wall_images)
+                               sparse=True, wall_images=config.wall_images, family=config.refine_factor)
             self.grids.append(fine)
             self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device,
                                    config.reconstruct, config.surface_threshold, self.launcher)

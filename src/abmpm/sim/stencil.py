@@ -28,6 +28,17 @@ class Stencil:
 
 
 @wp.func
+def bspline(r: float):
+    # the 1D quadratic B-spline N(r), r in cells
+    a = wp.abs(r)
+    if a < 0.5:
+        return 0.75 - a * a
+    if a < 1.5:
+        return 0.5 * (1.5 - a) * (1.5 - a)
+    return 0.0
+
+
+@wp.func
 def bspline_weights(fx: wp.vec3):
     # Quadratic B-spline weights of the 3 nodes per axis; rows = node offset 0,1,2,
     # columns = axis. fx is the particle position relative to the base node, in cells.

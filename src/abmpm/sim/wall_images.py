@@ -35,9 +35,9 @@ from __future__ import annotations
 import warp as wp
 
 from .boundary import BOUNDARY_SEPARATE
-from .footprint import Footprint, box_weights
+from .footprint import Footprint, family_weights, stress_weight
 from .grid import GridSpec, node_index, node_position
-from .stencil import Stencil, weight_at
+from .stencil import Stencil, bspline, weight_at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -46,17 +46,6 @@ REACH = wp.constant(1.5)  # cells: the quadratic B-spline's support radius
 # (7 images x 27 nodes unrolled made NVRTC's build of every P2G pass take minutes)
 IMAGES = 8  # image 0 is the particle itself
 STENCIL_NODES = 27
-
-
-@wp.func
-def bspline(r: float):
-    # the 1D quadratic B-spline N(r), r in cells
-    a = wp.abs(r)
-    if a < 0.5:
-        return 0.75 - a * a
-    if a < 1.5:
-        return 0.5 * (1.5 - a) * (1.5 - a)
-    return 0.0
 
 
 @wp.func
@@ -178,10 +167,10 @@ def scatter_wall_images(g: GridSpec, st: Stencil, xp: wp.vec3, stress: wp.mat33,
 @wp.func
 def scatter_footprint_images(g: GridSpec, fp: Footprint, xp: wp.vec3, stress: wp.mat33, tau: wp.mat33,
                              grid_mv: wp.array(dtype=wp.vec3)):
-    """The same for a level-0 particle's footprint on the fine grid (sim/footprint.py):
-    its box is cut at the wall plane, so its image's box lies beyond it, and the image
-    reaches only nodes of the particle's own footprint."""
-    sides = wall_sides(g, xp, tau, REACH + wp.max(fp.a))
+    """The same for a level-0 particle's footprint on the fine grid (sim/footprint.py,
+    ``stress`` its -dt V tau): the image of its family is the family of its image, and
+    it reaches only nodes of the particle's own footprint."""
+    sides = wall_sides(g, xp, tau, REACH + fp.reach)
     if sides[0] == 0 and sides[1] == 0 and sides[2] == 0:
         return
     images = int(IMAGES)
@@ -190,16 +179,21 @@ def scatter_footprint_images(g: GridSpec, fp: Footprint, xp: wp.vec3, stress: wp
         if R[0] != 0.0:
             Xi = (image_position(g, xp, R, sides) - g.origin) * g.inv_dx
             reflected = reflect_stress(stress, R)
-            wx = box_weights(Xi[0], fp.a[0], fp.base[0])
-            wy = box_weights(Xi[1], fp.a[1], fp.base[1])
-            wz = box_weights(Xi[2], fp.a[2], fp.base[2])
+            im = fp
+            wx, gx = family_weights(Xi[0], fp.base[0], fp.children, fp.pitch)
+            wy, gy = family_weights(Xi[1], fp.base[1], fp.children, fp.pitch)
+            wz, gz = family_weights(Xi[2], fp.base[2], fp.children, fp.pitch)
+            im.wx = wx
+            im.wy = wy
+            im.wz = wz
+            im.gx = gx
+            im.gy = gy
+            im.gz = gz
             for i in range(fp.nodes):
                 for j in range(fp.nodes):
                     for k in range(fp.nodes):
-                        weight = wx[i] * wy[j] * wz[k]
                         c = fp.base + wp.vec3i(i, j, k)
-                        if weight > 0.0 and inside_reflected(g, node_position(g, c), R, sides):
+                        if im.wx[i] * im.wy[j] * im.wz[k] > 0.0 and inside_reflected(g, node_position(g, c), R, sides):
                             n = node_index(g, c[0], c[1], c[2])
                             if n >= 0:
-                                dpos = (wp.vec3(float(c[0]), float(c[1]), float(c[2])) - Xi) * g.dx
-                                wp.atomic_add(grid_mv, n, weight * (reflected * dpos))
+                                wp.atomic_add(grid_mv, n, reflected * stress_weight(im, i, j, k, g.inv_dx))
