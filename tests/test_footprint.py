@@ -68,6 +68,16 @@ def _deposit_all(g: GridSpec, x: np.ndarray, volume: float):
     return field.numpy(), force.numpy()
 
 
+def _coarse_lattice(b: int, x_lo: float, x_hi: float):
+    # coarse particles (spacing h = b fine cells / 2) filling x_lo..x_hi (fine cells) along x
+    # and 8..32 fine cells along y and z; their fine spacing and the points (m)
+    dxf = 1.0 / DIMS
+    h = b * dxf / 2
+    cx = x_lo * dxf + (np.arange(int(round((x_hi - x_lo) * dxf / h))) + 0.5) * h
+    c = (np.arange(int(round(24 * dxf / h))) + 0.5) * h + 8 * dxf
+    return dxf, h, np.stack(np.meshgrid(cx, c, c, indexing="ij"), -1).reshape(-1, 3)
+
+
 def _points_1d(k: np.ndarray, x: np.ndarray, weight: float):
     # volume and stress weight (4 r N, cells) on nodes k of points at x (cells), each ``weight``
     r = k[:, None] - x[None, :]
@@ -103,14 +113,10 @@ def test_footprint_moments(b):
 def test_a_lattice_of_footprints_is_the_material_sampled_fine(b):
     # Coarse particles on their lattice give every node one fine cell's volume and no
     # force under a uniform pressure, as the same material sampled fine does (the box
-    # average with its MLS inertia, used until 2026-11-30, left +-7% of a node's force
-    # alternating through the lattice at b = 3; points two cells apart at b = 4 gave
-    # the nodes from 0.5^3 to 1.5^3 of the volume).
-    dxf = 1.0 / DIMS
-    h = b * dxf / 2
-    n = int(round(24 * dxf / h))
-    c = (np.arange(n) + 0.5) * h + 8 * dxf
-    x = np.stack(np.meshgrid(c, c, c, indexing="ij"), -1).reshape(-1, 3)
+    # average with its MLS inertia, used until 2026-11-29, left 0.07 p dx'^2 on every
+    # other node of the lattice at b = 3; points two cells apart at b = 4 gave the nodes
+    # from 0.5^3 to 1.5^3 of the volume).
+    dxf, h, x = _coarse_lattice(b, 8, 32)
     field, force = _deposit_all(_grid(dxf, b), x, h**3)
     assert np.allclose(field[14:26, 14:26, 14:26] / dxf**3, 1.0, atol=1e-4)
     assert np.allclose(force[14:26, 14:26, 14:26] / dxf**3, 0.0, atol=1e-4)
@@ -121,16 +127,11 @@ def test_coarse_particles_meet_children_as_fine_material(b):
     # The level interface: coarse particles for x < X0 (a node plane), their children's
     # lattice (fine points half a fine cell apart) beyond it. Together they give the
     # nodes across the interface one cell's volume and no force under a uniform pressure
-    # (points for the coarse particles gave +-1.6% of the volume and +-8% of a node's
-    # force on the three nodes around X0 at b = 2, and the tank at rest a current along
-    # its floor from the fine half into the coarse one).
-    dxf = 1.0 / DIMS
-    h = b * dxf / 2
+    # (points for the coarse particles gave the three nodes around X0 1.016, 1.0 and 0.984
+    # of the volume and -0.078, +0.156, -0.078 p dx'^2 at b = 2, and the tank at rest a
+    # current along its floor from the fine half into the coarse one).
     X0 = 20
-    n = int(round(12 * dxf / h))
-    cx = X0 * dxf - (np.arange(n) + 0.5) * h
-    c = (np.arange(int(round(24 * dxf / h))) + 0.5) * h + 8 * dxf
-    x = np.stack(np.meshgrid(cx, c, c, indexing="ij"), -1).reshape(-1, 3)
+    dxf, h, x = _coarse_lattice(b, X0 - 12, X0)
     field, force = _deposit_all(_grid(dxf, b), x, h**3)
     k = np.arange(14, 27, dtype=float)
     fine_v, fine_f = _points_1d(k, X0 + (np.arange(30) + 0.5) * 0.5, 0.5)
@@ -146,13 +147,8 @@ def test_footprints_up_to_a_wall_give_the_nodes_along_it_the_fine_volume(b):
     # WALL) give the fine nodes along it the volume and force the same material sampled
     # fine gives them (0.016, 0.5, 0.984, 1 of a cell's volume from the node beyond the
     # plane on), exactly: their children would sit where the fine lattice's particles do.
-    dxf = 1.0 / DIMS
-    h = b * dxf / 2
     WALL = 8
-    n = int(round(24 * dxf / h))
-    cx = WALL * dxf + (np.arange(n) + 0.5) * h
-    c = (np.arange(n) + 0.5) * h + 8 * dxf
-    x = np.stack(np.meshgrid(cx, c, c, indexing="ij"), -1).reshape(-1, 3)
+    dxf, h, x = _coarse_lattice(b, WALL, WALL + 24)
     g = _grid(dxf, b)
     g.domain_lo = wp.vec3(WALL * dxf, -1.0, -1.0)
     field, force = _deposit_all(g, x, h**3)

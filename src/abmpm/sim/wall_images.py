@@ -35,7 +35,7 @@ from __future__ import annotations
 import warp as wp
 
 from .boundary import BOUNDARY_SEPARATE
-from .footprint import Footprint, family_weights, stress_weight
+from .footprint import Footprint, footprint_weights, stress_weight
 from .grid import GridSpec, node_index, node_position
 from .stencil import Stencil, bspline, weight_at
 
@@ -177,18 +177,8 @@ def scatter_footprint_images(g: GridSpec, fp: Footprint, xp: wp.vec3, stress: wp
     for image in range(1, images):
         R = image_axes(sides, image)
         if R[0] != 0.0:
-            Xi = (image_position(g, xp, R, sides) - g.origin) * g.inv_dx
             reflected = reflect_stress(stress, R)
-            im = fp
-            wx, gx = family_weights(Xi[0], fp.base[0], fp.children, fp.pitch)
-            wy, gy = family_weights(Xi[1], fp.base[1], fp.children, fp.pitch)
-            wz, gz = family_weights(Xi[2], fp.base[2], fp.children, fp.pitch)
-            im.wx = wx
-            im.wy = wy
-            im.wz = wz
-            im.gx = gx
-            im.gy = gy
-            im.gz = gz
+            im = footprint_weights(g, image_position(g, xp, R, sides), fp)  # on the particle's nodes
             for i in range(fp.nodes):
                 for j in range(fp.nodes):
                     for k in range(fp.nodes):
