@@ -3,15 +3,15 @@
 A particle gathers velocity and its affine matrix from its own level's grid (Eqs.
 11-12): ``g2p_dense`` on the coarse grid (or the single grid of the original and
 finest modes), ``g2p_sparse`` on the fine block-sparse grid. Beyond the paper, a
-level-0 particle in a collider's band whose footprint lies whole in active fine blocks
-(``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, with its family's
-footprint as the kernel (``gather_footprint``, sim/footprint.py; docs/method.md, "Coarse particles in a collider's band
-move with the fine grid"), and keeps its own grid's band and colors; so does one
-whose coarse cell holds mostly level-1 mass (``Refiner.coarse_children``). The other
-way round, a child among coarse particles away from the region (marked ON_COARSE)
-moves with the coarse grid as a point of it. With colliders an
-incompatible node lends the particle's boundary velocity instead of its own
-(Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
+level-0 particle in a collider's band whose footprint lies whole in active fine
+blocks (``p2g_sparse`` marks it, ``on_fine``) moves with the fine grid, its family's
+footprint the kernel (``gather_footprint``, sim/footprint.py; docs/method.md, "Coarse
+particles in a collider's band move with the fine grid"), and keeps its own grid's
+band and colors; so does one whose coarse cell holds mostly level-1 mass
+(``Refiner.coarse_children``). The other way round, a child among coarse particles
+away from the region (marked ON_COARSE) moves with the coarse grid as a point of it.
+With colliders an incompatible node lends the particle's boundary velocity instead of
+its own (Eqs. 23-25), and advection never crosses a surface (``advect``). Then the
 deformation update and the material's return mapping (Eqs. 7, 13-14), and the
 particle's speed and sound-speed stiffening into the CFL signal.
 """
@@ -125,8 +125,8 @@ def advect(colliders: ColliderArrays, color: ColorField, g: GridSpec, cb: int, s
 
 def _make_gather_footprint(cpic: bool):
     @wp.func
-    def gather_footprint(g: GridSpec, colliders: ColliderArrays, color: ColorField, grid_v: wp.array(dtype=wp.vec3),
-                   s: ParticleArrays, p: int, dt: float):
+    def gather_footprint(g: GridSpec, colliders: ColliderArrays, color: ColorField,
+                         grid_v: wp.array(dtype=wp.vec3), s: ParticleArrays, p: int, dt: float):
         """Eqs. 5-6 for a level-0 particle on the fine grid with the kernel it scattered
         with there, its family's (``sim/footprint.py``): v and C its children's mean. Every node
         of its footprint is active (``p2g_sparse`` says so); an incompatible node lends
@@ -191,7 +191,7 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
         xp = s.x[p]
         new_v = wp.vec3(0.0)
         new_C = wp.mat33(0.0)
-        if level0_here:  # with its box, the kernel it scattered with here
+        if level0_here:  # with its family's footprint, the kernel it scattered with here
             new_v, new_C = wp.static(gather_footprint)(g, colliders, color, grid_v, s, p, dt)
         else:
             st = wp.static(stencil)(g, xp)

@@ -15,8 +15,8 @@ With colliders, a particle scatters only to the nodes on its side of every surfa
                        a child the coarse grid moves (``Refiner.coarse_children``)
                        with its whole stencil
 ``p2g_sparse``         adaptive, fine block-sparse grid: every particle, to the
-                       active blocks; a level-0 particle wider than a fine cell
-                       as its box (``sim/footprint.py``)
+                       active blocks; a level-0 particle as the family it would
+                       split into (``sim/footprint.py``)
 =====================  =========================================================
 
 With ``walls.images`` every pass adds, for a particle within reach of a domain wall, its
