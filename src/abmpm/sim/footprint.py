@@ -63,11 +63,11 @@ class Footprint:
 
 
 @wp.func
-def family_weights(X: float, lo: int, children: int, pitch: float):
-    # W(k - X) and G(k - X) of nodes k = lo .. lo + 4 (module docstring)
+def family_weights(X: float, lo: int, nodes: int, children: int, pitch: float):
+    # W(k - X) and G(k - X) of nodes k = lo .. lo + nodes - 1 (module docstring), 0 beyond;
+    # ``nodes`` a run-time value, so that Warp does not unroll the loop (compile time)
     w = vec5()
     gr = vec5()
-    nodes = int(FOOTPRINT_NODES)  # a loop Warp does not unroll (compile time)
     inv = 1.0 / float(children)
     for q in range(nodes):
         sw = float(0.0)
@@ -115,9 +115,9 @@ def footprint_weights(g: GridSpec, x: wp.vec3, fp: Footprint):
     """``fp`` with the weights of its nodes (module docstring)."""
     X = (x - g.origin) * g.inv_dx
     out = fp
-    wx, gx = family_weights(X[0], fp.base[0], fp.children, fp.pitch)
-    wy, gy = family_weights(X[1], fp.base[1], fp.children, fp.pitch)
-    wz, gz = family_weights(X[2], fp.base[2], fp.children, fp.pitch)
+    wx, gx = family_weights(X[0], fp.base[0], fp.nodes, fp.children, fp.pitch)
+    wy, gy = family_weights(X[1], fp.base[1], fp.nodes, fp.children, fp.pitch)
+    wz, gz = family_weights(X[2], fp.base[2], fp.nodes, fp.children, fp.pitch)
     out.wx = wx
     out.wy = wy
     out.wz = wz

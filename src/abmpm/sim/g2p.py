@@ -147,9 +147,9 @@ def _make_gather_footprint(cpic: bool):
                     weight = fp.wx[i] * fp.wy[j] * fp.wz[k]
                     n = stencil_node(g, slots, fp.base, i, j, k)
                     if weight > 0.0 and n >= 0:
-                        dpos = node_position(g, fp.base + wp.vec3i(i, j, k)) - xp
                         vi = grid_v[n]
                         if wp.static(cpic):
+                            dpos = node_position(g, fp.base + wp.vec3i(i, j, k)) - xp  # as p2g's test reads it
                             if not compatible(s.surface_point[p], s.surface_side[p], cb, xp, color, xp + dpos, n, g.dx):
                                 vi = v_bar
                         v += weight * vi
