@@ -24,6 +24,7 @@ from shapely.prepared import prep
 from abmpm.geometry.glyphs import panel_polygons
 from abmpm.geometry.motion import KinematicMotion
 from abmpm.geometry.procedural import _hourglass_profile
+from abmpm.geometry.sampling import lattice_spacing
 from abmpm.geometry.transforms import euler_matrix
 
 Frames = list[tuple[float, dict]]
@@ -89,14 +90,19 @@ def pieces(x: np.ndarray, mass: np.ndarray | None = None, radius: float | None =
     return int(np.sum(per >= min_mass * mass.sum())), labels
 
 
-def cut_gap(x: np.ndarray, point, normal, bin_size: float, band: float) -> dict:
+def cut_gap(x: np.ndarray, point, normal, bin_size: float, band: float, layer: float = 0.0) -> dict:
     """Width and roughness of a cut along the plane (``point``, ``normal``).
 
     The particles within ``band`` of the plane are binned on the plane in squares of
-    ``bin_size``; in each bin with particles on both sides, the two cut faces are the
-    nearest particle on each side. ``width``: median distance between the faces;
-    ``roughness``: standard deviation of the face positions over the bins (mean of the
-    two sides). ``bins``: bins used. No bins: width and roughness are None.
+    ``bin_size``; in each bin with particles on both sides, each cut face is the mean
+    distance of that side's first layer of particles: those within ``layer / 2`` of the
+    nearest one (``layer``: the particles' lattice spacing; 0: the nearest particle
+    alone). The nearest particle alone is biased by the sampling jitter: it is the least
+    of the bin's jittered draws, several independent ones in finest mode and one or two
+    shared by a whole family in adaptive mode (docs/method.md, "The cut's width and the
+    sampling jitter"). ``width``: median distance between the faces; ``roughness``:
+    standard deviation of the face positions over the bins (mean of the two sides).
+    ``bins``: bins used. No bins: width and roughness are None.
     """
     x = np.asarray(x, np.float64)
     n = np.asarray(normal, np.float64)
@@ -114,14 +120,21 @@ def cut_gap(x: np.ndarray, point, normal, bin_size: float, band: float) -> dict:
     _, inv = np.unique(keys, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
     nb = inv.max() + 1
+    pos, neg = d > 0, d <= 0
     plus = np.full(nb, np.inf)
     minus = np.full(nb, -np.inf)
-    np.minimum.at(plus, inv[d > 0], d[d > 0])
-    np.maximum.at(minus, inv[d <= 0], d[d <= 0])
+    np.minimum.at(plus, inv[pos], d[pos])
+    np.maximum.at(minus, inv[neg], d[neg])
     both = np.isfinite(plus) & np.isfinite(minus)
     if not both.any():
         return {"width": None, "roughness": None, "bins": 0}
-    plus, minus = plus[both], minus[both]
+    # each face: the mean of its first layer
+    first = (pos & (d <= plus[inv] + 0.5 * layer)) | (neg & (d >= minus[inv] - 0.5 * layer))
+    total = np.bincount(inv[first] * 2 + pos[first], d[first], minlength=2 * nb).reshape(nb, 2)
+    count = np.bincount(inv[first] * 2 + pos[first], minlength=2 * nb).reshape(nb, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        face = total / count
+    plus, minus = face[both, 1], face[both, 0]
     return {
         "width": float(np.median(plus - minus)),
         "roughness": float(0.5 * (np.std(plus) + np.std(minus))),
@@ -332,7 +345,9 @@ def cut_outcome(scene, frames: Frames, summary: dict) -> dict:
     # blade drags into the top surface (paper scale, 0.2 s after contact: finest reads
     # 9.9 mm with fine bins and 7.7 or 22.5 mm with coarse ones, by where the bins fall)
     cut = swept_by(f["x"], rects[0], margin=st.dx)
-    gap = cut_gap(np.asarray(f["x"])[cut], c, n, bin_size=st.dx / st.refinement.factor, band=2.0 * st.dx)
+    fine = st.dx / st.refinement.factor
+    layer = lattice_spacing(fine, scene.bodies[0].particles_per_cell)  # the finest level's particle spacing
+    gap = cut_gap(np.asarray(f["x"])[cut], c, n, bin_size=fine, band=2.0 * st.dx, layer=layer)
     # a blade whose edge has reached the floor still has a film of material under it
     # (particles sink a fraction of a cell into a wall): grow it by half a cell
     count, _ = pieces(f["x"], f["mass"], walls=blade_rects(col, t, pad=0.5 * st.dx))
