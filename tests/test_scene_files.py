@@ -130,6 +130,34 @@ def test_relative_mesh_path_resolves_against_the_scene_file(tmp_path):
     assert len(sample_scene(scene)["x"]) > 0
 
 
+def test_a_runs_scene_record_runs_as_its_file_did(tmp_path, monkeypatch, capsys):
+    """A run writes its validated scene to scene.json; ``abmpm run out/scene.json`` runs it
+    again, its relative mesh paths still resolved against the scene file's folder (which
+    the record keeps), and a record that is not a scene is a clear error."""
+    trimesh = pytest.importorskip("trimesh")
+    sub = tmp_path / "scenes"
+    (sub / "meshes").mkdir(parents=True)
+    box = trimesh.creation.box(extents=(0.15, 0.15, 0.15))
+    box.apply_translation((0.2, 0.1, 0.2))
+    box.export(sub / "meshes" / "cube.obj")
+    (sub / "scene.toml").write_text(GOOD + '\n[[bodies]]\nshape = "mesh"\nmaterial = "jelly"\n'
+                                    'file = "meshes/cube.obj"\ntranslation = [0.0, 0.15, 0.0]\n')
+    monkeypatch.chdir(tmp_path)
+    first = ["--frames", "1", "--no-preview", "-q"]
+    assert main(["run", "scenes/scene.toml", "--out", "a", *first]) == 0
+    scene, record = load_scene(sub / "scene.toml"), load_scene(tmp_path / "a" / "scene.json")
+    assert record.model_dump() == scene.model_dump()
+    assert record.resolve(record.bodies[1].file) == (sub / "meshes" / "cube.obj").resolve()
+    assert main(["run", "a/scene.json", "--out", "b", *first]) == 0
+    assert len(sample_scene(record)["x"]) == len(sample_scene(scene)["x"])
+    (tmp_path / "list.json").write_text("[1, 2]")
+    code, err = run_cli(["run", "list.json", "--out", "c", *first], capsys)
+    assert_user_error(code, err, "list.json: a scene is a table of settings, not a list")
+    (tmp_path / "cut.json").write_text('{"name": ')
+    code, err = run_cli(["run", "cut.json", "--out", "c", *first], capsys)
+    assert_user_error(code, err, "cut.json: JSON syntax error:")
+
+
 # --------------------------------------------------------------------------- bad input
 
 

@@ -44,7 +44,7 @@ from abmpm.io.writers import FrameData, RunContext, Writer, build_writers
 from abmpm.io.writers.summary import make_summary
 from abmpm.post.preview import render_folder
 from abmpm.scene.checks import slow_start_note
-from abmpm.scene.loader import load_scene
+from abmpm.scene.loader import load_scene, scene_record
 from abmpm.scene.model import Scene
 from abmpm.simulation import Simulation, can_refine
 
@@ -109,7 +109,7 @@ def run(
                      "nothing left to simulate")
     if resumed_from is None:
         clean_previous_run(out)
-    write_json(out / SCENE_FILE, scene.model_dump(mode="json"))
+    write_json(out / SCENE_FILE, scene_record(scene))
 
     bar = Progress(progress, console)
     ctx = RunContext(out, scene, sim, total, tuple(w.name for w in writers), bar, resumed_from, t_start)

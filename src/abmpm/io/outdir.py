@@ -15,6 +15,7 @@ from pathlib import Path
 
 from abmpm.errors import OutputError
 from abmpm.io.checkpoint import checkpoint_name
+from abmpm.scene.loader import RECORD_BASE_DIR
 from abmpm.scene.model import Scene
 
 __all__ = [
@@ -177,6 +178,9 @@ def scene_from_folder(out: Path) -> Scene:
         raise OutputError(f"{out}: not an abmpm output folder (no {SCENE_FILE})")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        return Scene.model_validate(data)
+        base_dir = data.pop(RECORD_BASE_DIR, None)  # scene_record's
+        scene = Scene.model_validate(data)
+        scene.base_dir = Path(base_dir) if base_dir else None
+        return scene
     except Exception as exc:  # corrupt or from an incompatible version
         raise OutputError(f"{path}: cannot read the scene ({type(exc).__name__}: {exc})") from None

@@ -14,6 +14,7 @@ Relative mesh paths in the file resolve against the file's folder
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import tomllib
@@ -27,7 +28,10 @@ from pydantic import ValidationError
 from abmpm.errors import SceneError
 from abmpm.scene import model as sm
 
-__all__ = ["load_scene", "read_scene_document", "list_builtin_scenes", "builtin_scene_path", "format_validation_error"]
+RECORD_BASE_DIR = "base_dir"  # the key of a run's scene.json that holds its scene file's folder
+
+__all__ = ["load_scene", "read_scene_document", "scene_record", "list_builtin_scenes", "builtin_scene_path",
+           "format_validation_error"]
 
 _BUILTIN_PACKAGE = "abmpm.scene"
 _BUILTIN_FOLDER = "builtin"
@@ -97,21 +101,22 @@ def list_builtin_scenes() -> dict[str, str]:
 
 
 def load_scene(path_or_name: str | os.PathLike) -> sm.Scene:
-    """Load a scene from a ``.toml`` file or by built-in name (``"dam_break"``).
+    """Load a scene from a ``.toml`` file, a run's ``scene.json`` or by built-in name (``"dam_break"``).
 
     Raises :class:`SceneError` for a missing or unreadable file, a TOML syntax error,
     an unknown built-in name, or invalid contents (one line per problem).
     """
     if isinstance(path_or_name, sm.Scene):
         return path_or_name
-    data, label, path = read_scene_document(path_or_name)
-    return scene_from_dict(data, label=label, base_dir=path.parent, default_name=path.stem)
+    data, label, path, base_dir = read_scene_document(path_or_name)
+    return scene_from_dict(data, label=label, base_dir=base_dir, default_name=path.stem)
 
 
-def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any], str, Path]:
-    """The parsed TOML of a scene file or a built-in scene, not yet validated:
-    ``(document, label for errors, path of the file)``. SceneError for a missing or
-    unreadable file, a TOML syntax error or an unknown built-in name."""
+def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any], str, Path, Path]:
+    """The parsed TOML of a scene file or a built-in scene (or the JSON of a run's
+    ``scene.json``), not yet validated: ``(document, label for errors, path of the file,
+    folder its relative file paths resolve against)``. SceneError for a missing or
+    unreadable file, a syntax error or an unknown built-in name."""
     if not isinstance(path_or_name, (str, os.PathLike)):
         raise SceneError(f"expected a scene file or a built-in name, got {path_or_name!r}")
     text = os.fspath(path_or_name)
@@ -136,12 +141,30 @@ def read_scene_document(path_or_name: str | os.PathLike) -> tuple[dict[str, Any]
         raw = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{label}: cannot read file ({exc.strerror or exc})") from exc
+    # a run's own record of its scene (scene.json in its folder) runs as well
+    kind = "JSON" if path.suffix.lower() == ".json" else "TOML"
     try:
-        return tomllib.loads(raw.decode("utf-8")), label, path
+        text = raw.decode("utf-8")
+        data = json.loads(text) if kind == "JSON" else tomllib.loads(text)
     except UnicodeDecodeError as exc:
-        raise SceneError(f"{label}: TOML syntax error: file is not UTF-8 text ({exc.reason})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{label}: TOML syntax error: {exc}") from exc
+        raise SceneError(f"{label}: {kind} syntax error: file is not UTF-8 text ({exc.reason})") from exc
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+        raise SceneError(f"{label}: {kind} syntax error: {exc}") from exc
+    if not isinstance(data, dict):
+        raise SceneError(f"{label}: a scene is a table of settings, not a {type(data).__name__}")
+    base_dir = path.parent
+    if kind == "JSON" and isinstance(data.get(RECORD_BASE_DIR), str):  # where the run's scene file was
+        base_dir = Path(data.pop(RECORD_BASE_DIR))
+    return data, label, path, base_dir.resolve()
+
+
+def scene_record(scene: sm.Scene) -> dict[str, Any]:
+    """The scene as a run records it (``scene.json``): its validated settings and the
+    folder its relative file paths resolve against, so that the record runs as the file did."""
+    data = scene.model_dump(mode="json")
+    if scene.base_dir is not None:
+        data[RECORD_BASE_DIR] = str(scene.base_dir)
+    return data
 
 
 def scene_from_dict(

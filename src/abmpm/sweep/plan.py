@@ -173,8 +173,8 @@ def scene_source(scene) -> SceneSource:
         return SceneSource(scene.model_dump(mode="json"), label=scene.name, base_dir=base)
     if isinstance(scene, Mapping):
         return SceneSource(copy.deepcopy(dict(scene)), label=str(scene.get("name", "scene")))
-    data, label, path = read_scene_document(scene)  # SceneError for a missing file or bad TOML
-    source = SceneSource(data, label=label, base_dir=str(path.parent.resolve()), default_name=path.stem)
+    data, label, path, base_dir = read_scene_document(scene)  # SceneError for a missing file or bad TOML
+    source = SceneSource(data, label=label, base_dir=str(base_dir), default_name=path.stem)
     source.build()  # the file is validated as it is first: its own errors come first
     return source
 
