@@ -342,8 +342,9 @@ def cut_outcome(scene, frames: Frames, summary: dict) -> dict:
     # "gap" would be the particle spacing of whatever level samples it; the last coarse
     # cell above the edge is still being split. Bins as fine as the fine grid: the cut
     # is a fine-grid feature, and a coarse bin mixes the faces with the groove that the
-    # blade drags into the top surface (paper scale, 0.2 s after contact: finest reads
-    # 9.9 mm with fine bins and 7.7 or 22.5 mm with coarse ones, by where the bins fall)
+    # blade drags into the top surface (paper scale, 0.2 s after contact, faces by the
+    # nearest particle: finest read 9.9 mm with fine bins and 7.7 or 22.5 mm with coarse
+    # ones, by where the bins fall)
     cut = swept_by(f["x"], rects[0], margin=st.dx)
     fine = st.dx / st.refinement.factor
     layer = lattice_spacing(fine, scene.bodies[0].particles_per_cell)  # the finest level's particle spacing

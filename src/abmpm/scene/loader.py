@@ -1,4 +1,5 @@
-"""Loading scenes from TOML files and from the built-in scene library.
+"""Loading scenes from TOML files, from a run's record (``scene.json``) and from the
+built-in scene library.
 
 ``load_scene("my_scene.toml")`` or ``load_scene("dam_break")`` returns a validated
 :class:`~abmpm.scene.model.Scene`. Everything a user can get wrong in a scene file
