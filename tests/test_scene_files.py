@@ -115,7 +115,8 @@ def test_scene_file_defaults(tmp_path):
     assert [m.model for m in scene.materials] == ["fluid", "elastic"]
 
 
-def test_relative_mesh_path_resolves_against_the_scene_file(tmp_path):
+def scene_with_a_mesh(tmp_path):
+    """tmp_path/scenes/scene.toml: GOOD and a jelly body from meshes/cube.obj (a relative path)."""
     trimesh = pytest.importorskip("trimesh")
     sub = tmp_path / "scenes"
     (sub / "meshes").mkdir(parents=True)
@@ -125,6 +126,12 @@ def test_relative_mesh_path_resolves_against_the_scene_file(tmp_path):
     path = sub / "scene.toml"
     path.write_text(GOOD + '\n[[bodies]]\nshape = "mesh"\nmaterial = "jelly"\nfile = "meshes/cube.obj"\n'
                     'translation = [0.0, 0.15, 0.0]\n')
+    return path
+
+
+def test_relative_mesh_path_resolves_against_the_scene_file(tmp_path):
+    path = scene_with_a_mesh(tmp_path)
+    sub = path.parent
     scene = load_scene(path)
     assert scene.resolve(scene.bodies[1].file) == (sub / "meshes" / "cube.obj").resolve()
     assert len(sample_scene(scene)["x"]) > 0
@@ -134,14 +141,7 @@ def test_a_runs_scene_record_runs_as_its_file_did(tmp_path, monkeypatch, capsys)
     """A run writes its validated scene to scene.json; ``abmpm run out/scene.json`` runs it
     again, its relative mesh paths still resolved against the scene file's folder (which
     the record keeps), and a record that is not a scene is a clear error."""
-    trimesh = pytest.importorskip("trimesh")
-    sub = tmp_path / "scenes"
-    (sub / "meshes").mkdir(parents=True)
-    box = trimesh.creation.box(extents=(0.15, 0.15, 0.15))
-    box.apply_translation((0.2, 0.1, 0.2))
-    box.export(sub / "meshes" / "cube.obj")
-    (sub / "scene.toml").write_text(GOOD + '\n[[bodies]]\nshape = "mesh"\nmaterial = "jelly"\n'
-                                    'file = "meshes/cube.obj"\ntranslation = [0.0, 0.15, 0.0]\n')
+    sub = scene_with_a_mesh(tmp_path).parent
     monkeypatch.chdir(tmp_path)
     first = ["--frames", "1", "--no-preview", "-q"]
     assert main(["run", "scenes/scene.toml", "--out", "a", *first]) == 0
