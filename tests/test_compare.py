@@ -354,6 +354,7 @@ def test_apply_overrides_sets_list_items():
     (["paper", "--scenes", "paper_cut", "--window", "nan"], "--window"),
     (["paper", "--scenes", "paper_cut", "--window", "0.1", "--frames", "2"], "--window and --frames"),
     (["paper", "--scenes", "paper_cut", "--set", "simulation.no_such_key=1"], "no_such_key"),
+    (["paper", "--remeasure"], "no runs to measure again"),
 ])
 def test_cli_errors(argv, word, capsys, tmp_path):
     assert main(argv + ["--out", str(tmp_path / "x")]) == 2
@@ -369,3 +370,10 @@ def test_cli_set_changes_every_run(tmp_path):
                  "--set", "simulation.refinement.merge=true", "--set", "simulation.fps=50", "--out", str(out)]) == 0
     scene = json.loads((out / "dam_break" / "original" / "scene.json").read_text())
     assert scene["simulation"]["fps"] == 50 and scene["simulation"]["refinement"]["merge"] is True
+    # --remeasure runs nothing: the table is measured again from the run's own folder
+    table = out / "table1.json"
+    record = json.loads(table.read_text())["records"][0]
+    table.write_text(json.dumps({"records": [{**record, "outcome": {}}]}))
+    assert main(["compare", "dam_break", "--remeasure", "--quiet", "--out", str(out)]) == 0
+    again = json.loads(table.read_text())["records"]
+    assert len(again) == 1 and again[0]["outcome"] == record["outcome"] and again[0]["steps"] == record["steps"]

@@ -46,7 +46,7 @@ from abmpm.cli_common import stderr_console as _stderr
 from abmpm.cli_common import stdout_console as _stdout
 from abmpm.cli_post import add_parsers as add_post_parsers
 from abmpm.cli_sweep import add_parsers as add_sweep_parsers
-from abmpm.compare import PAPER_SCENES, compare, run_paper
+from abmpm.compare import PAPER_SCENES, compare, remeasure, run_paper
 from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
 from abmpm.io.writers.surface import surface_folder
 from abmpm.io.writers.viewer import ViewOptions
@@ -217,11 +217,17 @@ def _cmd_compare(args) -> int:
                   progress=not args.quiet, on_run=on_run)
     if args.command == "paper":
         out = Path(args.out) if args.out else Path("out") / ("paper_quick" if args.quick else "paper")
-        records = run_paper(scenes=tuple(args.scenes) if args.scenes else _paper_scenes(),
-                            out=out, quick=args.quick, window=args.window, **common)
     else:
         scene = load_scene(args.scene)  # unknown scene: one-line error before any run
         out = Path(args.out) if args.out else Path("out") / f"{scene.name}_compare"
+    if args.remeasure:  # the runs already there, measured again: nothing runs
+        records = remeasure(out)
+        if not records:
+            raise AbmpmError(f"{out}: no runs to measure again (no table1.json of abmpm {args.command})")
+    elif args.command == "paper":
+        records = run_paper(scenes=tuple(args.scenes) if args.scenes else _paper_scenes(),
+                            out=out, quick=args.quick, window=args.window, **common)
+    else:
         records = compare(scene, out=out, quick=args.quick, **common)
     if not args.quiet:
         for r in records:
@@ -350,6 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("--device", "-d", metavar="DEVICE", help="cpu, cuda or cuda:N")
         c.add_argument("--threads", "-j", type=_threads_arg, metavar="N", help="CPU threads for the step")
         c.add_argument("--quiet", "-q", action="store_true", help="no progress")
+        c.add_argument("--remeasure", action="store_true",
+                       help="run nothing: measure the runs already in the output folder again and rewrite its "
+                            "table, figures and report (after a measure changed)")
         c.set_defaults(func=_cmd_compare)
 
     b = sub.add_parser("bench", help="performance benchmark (options: abmpm bench --help-bench)",

@@ -199,10 +199,14 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
 def remeasure(out) -> list[dict]:
     """Measure the runs recorded in ``out/table1.json`` again from their folders (their
     ``scene.json``, ``summary.json`` and frames) and rewrite the figures, the table
-    and the report: for a changed outcome function, without running anything."""
+    and the report: for a changed outcome function, without running anything. No
+    table there: nothing is written, and the answer is empty."""
     out = Path(out)
     table, scenes = [], {}
-    for old in read_table(out):
+    recorded = read_table(out)
+    if not recorded:
+        return []
+    for old in recorded:
         run_dir = Path(old["run_dir"])
         sc = scene_from_folder(run_dir)
         rec = measure(sc, run_dir, json.loads((run_dir / "summary.json").read_text()))
