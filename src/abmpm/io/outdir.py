@@ -7,7 +7,6 @@ write or an earlier run left behind (only names abmpm's writers use).
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import tempfile
@@ -15,7 +14,7 @@ from pathlib import Path
 
 from abmpm.errors import OutputError
 from abmpm.io.checkpoint import checkpoint_name
-from abmpm.scene.loader import RECORD_BASE_DIR
+from abmpm.scene.loader import load_scene
 from abmpm.scene.model import Scene
 
 __all__ = [
@@ -177,10 +176,6 @@ def scene_from_folder(out: Path) -> Scene:
     if not path.is_file():
         raise OutputError(f"{out}: not an abmpm output folder (no {SCENE_FILE})")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        base_dir = data.pop(RECORD_BASE_DIR, None)  # scene_record's
-        scene = Scene.model_validate(data)
-        scene.base_dir = Path(base_dir) if base_dir else None
-        return scene
+        return load_scene(path)  # the record as `abmpm run` reads it (scene/loader.py)
     except Exception as exc:  # corrupt or from an incompatible version
         raise OutputError(f"{path}: cannot read the scene ({type(exc).__name__}: {exc})") from None
