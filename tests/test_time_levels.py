@@ -9,7 +9,8 @@ import warp as wp
 import abmpm
 from abmpm.bench.interface import TANK_DEPTH, tank_at_rest
 from abmpm.scene import model as sm
-from abmpm.sim.time_levels import SLOW_STEP_COST, cut_for_levels
+from abmpm.sim.refine import BESIDE_CELLS
+from abmpm.sim.time_levels import GUARD_HALO, SLOW_STEP_COST, SORT_HALO, cut_for_levels
 from abmpm.simulation import Simulation
 
 STIFF = 4.0e5  # Pa: stiff enough that the fine CFL step (not max_dt) sets dt, so k = 2 at b = 2
@@ -290,3 +291,23 @@ def test_the_slow_set_lands_on_a_sheet_as_the_global_step_does(flip):
             assert sim.solver.block == 2 and colored_slow > 0, (sim.solver.block, colored_slow)
         heights[time_steps] = float((p.mass * p.x[:, 1]).sum() / p.mass.sum())
     assert abs(heights["per_level"] - heights["global"]) < 2e-3, heights
+
+
+def test_a_level1_particle_reaches_the_slow_sets_nodes():
+    # The slow set stops GUARD_HALO + 1 = 2 coarse cells from the core: outside the zone beside
+    # the region (where level-0 particles scatter onto the fine grid), never in a cell holding
+    # level-1 mass; it may share coarse nodes with a child's overlap scatter (Eq. 8), which
+    # reaches only nodes marked as reached by level 0. So every node holding S's mass starts
+    # each substep of an open block marked (a child next to S then meets it on the coarse grid
+    # as it meets level-0 particles that step with it).
+    assert GUARD_HALO >= BESIDE_CELLS and SORT_HALO - GUARD_HALO >= 2
+    sim = Simulation(flight("per_level"), device="cpu")
+    checked = 0
+    for _ in range(120):
+        sim.step()
+        slow = sim.solver.slow
+        if slow.open:
+            held = slow.nodes.m.numpy() > 0.0
+            assert held.any() and (sim.solver._occ.numpy()[held] != 0).all()
+            checked += 1
+    assert checked > 20  # the bar's slow part stepped at k = 2 throughout

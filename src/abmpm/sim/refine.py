@@ -405,9 +405,9 @@ class Refiner:
         Each level's J follows the grid that moves it; a child among coarse particles, moved by
         the fine grid, is squeezed by coarse material whose pressure that grid's nodes do not
         balance, and the converse (docs/method.md). The first pass of every substep. The first
-        ``skip`` particles (the slow set while its step is open) are left out: they lie at least
-        GUARD_HALO coarse cells from every level-1 particle, so no cell they share holds level-1
-        mass, and no pass of their step reads their marks."""
+        ``skip`` particles (the slow set while its step is open) are left out: they lie more
+        than GUARD_HALO coarse cells from every level-1 particle, so no cell they share holds
+        level-1 mass, and no pass of their step reads their marks."""
         n = state.count - skip
         if n <= 0:
             return

@@ -29,13 +29,18 @@ one range): a level-0 particle whose cell is farther than SORT_HALO cells from t
 *core* (region cells, cells holding level-1 particles; ``SlowSet.grow_near``). Near a
 static collider S takes CPIC's masks at the open (the compatible nodes of its frozen
 positions) and its G2P at the close casts the whole step's path, as original mode does
-with a step T. S must stay at least GUARD_HALO = 3 cells from the core: two particles'
-coarse stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
-shares a node with a level-1 particle's overlap scatter or reaches a fine node a
-level-1 particle gathers from. The solver adds up how far the particles can have moved
-since that sort (each substep dt times the fastest fast particle, each step of S its
-length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO cells, the
-next open sorts (and chooses S) again. Frame ends sort anyway. A split while a step of
+with a step T. S must stay more than GUARD_HALO = 1 cell from the core: outside the zone
+beside the region (BESIDE_CELLS, where level-0 particles also scatter onto the fine grid)
+and out of every cell holding level-1 mass, so S never touches the fine grid and no pass
+of F reads a mark of S. It may share coarse nodes with a level-1 particle's overlap
+scatter (Eq. 8), which reaches only nodes marked as reached by level 0: S's nodes are
+marked at the open and after every substep's grid update (``slow_mark``), so a child
+meets S there as it meets the level-0 particles that step with it. (Until 2026-11-29 the
+guard was 3 cells, where no node is shared: 4.0-5.6k of the paper jelly's 15.5k coarse
+particles were slow, too few for their step to pay.) The solver adds up how far the
+particles can have moved since that sort (each substep dt times the fastest fast
+particle, each step of S its length times S's fastest); before the sum reaches
+SORT_HALO - GUARD_HALO cells, the next open sorts (and chooses S) again. Frame ends sort anyway. A split while a step of
 S is open sorts the other particles only: S keeps its place in the storage.
 """
 
@@ -49,7 +54,7 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ALL_NODES, ColorField, node_bit
-from .grid import GridSpec
+from .grid import REACHED_BY_LEVEL0, GridSpec
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .p2g import own_side_mask, record_reach
 from .parallel import (CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums,
@@ -61,8 +66,8 @@ from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
 
-GUARD_HALO = 3  # coarse cells: no S particle this close to the core (the drift bound keeps it so)
-SORT_HALO = 5  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
+GUARD_HALO = 1  # coarse cells: no S particle this close to the core (the drift bound keeps it so)
+SORT_HALO = 3  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
 
 
 @wp.struct
@@ -81,6 +86,26 @@ def add_slow(slow: SlowNodes, n: int, dt: float, m: float, mv: wp.vec3):
     if slow.on == 0:
         return m, mv
     return m + slow.m[n], mv + slow.p[n] + dt * slow.f[n]
+
+
+@wp.func
+def slow_mark(slow: SlowNodes, n: int):
+    """The overlap mark node ``n`` starts the next substep with: reached by level 0 where S
+    holds mass (a level-1 particle's overlap scatter then reaches it, as it reaches the nodes
+    of level-0 particles that step with it), else none."""
+    mark = int(0)
+    if slow.on != 0:
+        if slow.m[n] > 0.0:
+            mark = REACHED_BY_LEVEL0
+    return mark
+
+
+@wp.kernel
+def mark_slow_nodes(first: int, m: wp.array(dtype=float), overlap: wp.array(dtype=wp.int32)):
+    # at a block's open: S's nodes reached by level 0 for the first substep's overlap scatter
+    n = wp.tid() + first
+    if m[n] > 0.0:
+        overlap[n] = REACHED_BY_LEVEL0
 
 
 @wp.func
@@ -227,10 +252,11 @@ class SlowSet:
         return self.near.flatten()
 
     def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models, cpic: bool,
-                color: ColorField, cmask: wp.array) -> None:
+                color: ColorField, cmask: wp.array, overlap: wp.array) -> None:
         """Open a block: S onto its node arrays (threads into private sums, added in part order);
         with ``cpic``, each S particle near a collider onto its side's nodes (``color``, the
-        coarse grid's), its mask into ``cmask`` for the close's G2P."""
+        coarse grid's), its mask into ``cmask`` for the close's G2P; its nodes marked in the
+        coarse grid's ``overlap`` marks as reached by level 0."""
         s = self.nodes
         s.m.zero_()
         s.p.zero_()
@@ -252,6 +278,8 @@ class SlowSet:
                                  [private.sums, self._pf, s.p, s.m, s.f, self.coarse.node_count, chunk],
                                  label="slow sums", min_range=64)
             self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label="reset slow")
+        self.launcher.launch(mark_slow_nodes, self.coarse.node_count, [s.m, overlap], label="slow marks",
+                             min_range=4096)
         s.on = 1
         self.elapsed, self.taken = 0.0, 0
 
