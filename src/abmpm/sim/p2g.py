@@ -218,15 +218,21 @@ def _make_p2g_overlap(cpic: bool, models: tuple[int, ...]):
                     color: ColorField, dt_now: wp.array(dtype=float), cmask: wp.array(dtype=wp.int32),
                     grid_mv: wp.array(dtype=wp.vec3), grid_m: wp.array(dtype=float), reach: Reach,
                     tau_store: wp.array(dtype=wp.mat33), overlap: wp.array(dtype=wp.int32),
-                    on_fine: wp.array(dtype=wp.int32)):
+                    on_fine: wp.array(dtype=wp.int32), movers: int):
+        # Two launches a substep: first the children the coarse grid moves (``movers`` 0,
+        # Refiner.coarse_children), which scatter their whole stencil and mark its nodes, then
+        # the others (1), onto the nodes level 0 or those children reached. Within each launch
+        # no node's mark goes from none to some while another particle reads it, so the
+        # result does not depend on which thread gets there first.
         p = wp.tid() + first
         if s.level[p] != 1:
+            return
+        mover = moving_level(on_fine, p, 1)
+        if mover != movers:
             return
         st = dense_stencil(g, s.x[p])
         tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
         tau_store[p] = tau  # for p2g_sparse
-        # a child the coarse grid moves (Refiner.coarse_children) scatters its whole stencil
-        mover = moving_level(on_fine, p, 1)
         if mover == 1 and not overlap_reached(g, overlap, st.base):
             return
         affine = affine_momentum(s, p, g, dt_now[0], tau)
