@@ -35,13 +35,12 @@ and out of every cell holding level-1 mass, so S never touches the fine grid and
 of F reads a mark of S. It may share coarse nodes with a level-1 particle's overlap
 scatter (Eq. 8), which reaches only nodes marked as reached by level 0: S's nodes are
 marked at the open and after every substep's grid update (``slow_mark``), so a child
-meets S there as it meets the level-0 particles that step with it. (Until 2026-11-29 the
-guard was 3 cells, where no node is shared: 4.0-5.6k of the paper jelly's 15.5k coarse
-particles were slow, too few for their step to pay.) The solver adds up how far the
-particles can have moved since that sort (each substep dt times the fastest fast
-particle, each step of S its length times S's fastest); before the sum reaches
-SORT_HALO - GUARD_HALO cells, the next open sorts (and chooses S) again. Frame ends sort anyway. A split while a step of
-S is open sorts the other particles only: S keeps its place in the storage.
+meets S there as it meets the level-0 particles that step with it (docs/method.md has
+the guard's history and its measurements). The solver adds up how far the particles can
+have moved since that sort (each substep dt times the fastest fast particle, each step
+of S its length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO
+cells, the next open sorts (and chooses S) again. Frame ends sort anyway. A split while
+a step of S is open sorts the other particles only: S keeps its place in the storage.
 """
 
 from __future__ import annotations
