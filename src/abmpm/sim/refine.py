@@ -341,7 +341,7 @@ class Refiner:
               skip: int = 0) -> int:
         """Split the level-0 particles inside the region; returns how many were split.
         The first ``skip`` particles are far from the region (a time step per level's
-        slow set, sim/time_levels.py): no pass visits them."""
+        slow set, sim/time_levels.py): no pass visits them but the surface field's."""
         n = state.count
         if n == 0 or not self.region_cells.any():
             return 0
@@ -364,8 +364,11 @@ class Refiner:
             self.surface.volume.zero_()
             f, spec = self.surface, self.coarse.spec
             private = self.launcher.private_grids("surface", f.grad, f.volume)
-            self.launcher.launch(scatter_surface_mass, n - skip, lambda part, first, count: [
-                state.arrays(), materials, spec, f.near, *private.parts[part], private.reach[part]], start=skip)
+            # every particle's mass, the slow set's too: it may lie two coarse cells from a
+            # parent at the region's edge, within the smoothed field that parent reads, where
+            # leaving it out would put a surface (and move children onto it) inside the material
+            self.launcher.launch(scatter_surface_mass, n, lambda part, first, count: [
+                state.arrays(), materials, spec, f.near, *private.parts[part], private.reach[part]])
             if private.extra > 0:
                 chunk = CPU_NODE_CHUNK
                 self.launcher.launch(add_surface_sums, -(-self.coarse.node_count // chunk),
