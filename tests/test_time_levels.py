@@ -294,12 +294,12 @@ def test_the_slow_set_lands_on_a_sheet_as_the_global_step_does(flip):
 
 
 def test_a_level1_particle_reaches_the_slow_sets_nodes():
-    # The slow set stops GUARD_HALO + 1 = 2 coarse cells from the core: outside the zone beside
-    # the region (where level-0 particles scatter onto the fine grid), never in a cell holding
-    # level-1 mass; it may share coarse nodes with a child's overlap scatter (Eq. 8), which
-    # reaches only nodes marked as reached by level 0. So every node holding S's mass starts
-    # each substep of an open block marked (a child next to S then meets it on the coarse grid
-    # as it meets level-0 particles that step with it).
+    # The slow set stays more than GUARD_HALO coarse cells from the core: at least outside the
+    # zone beside the region (where level-0 particles scatter onto the fine grid), never in a
+    # cell holding level-1 mass. With a guard under 3 cells it may share coarse nodes with a
+    # child's overlap scatter (Eq. 8), which reaches only nodes marked as reached by level 0; so
+    # every node holding S's mass starts each substep of an open block marked (a child next to
+    # S then meets it on the coarse grid as it meets level-0 particles that step with it).
     assert GUARD_HALO >= BESIDE_CELLS and SORT_HALO - GUARD_HALO >= 2
     sim = Simulation(flight("per_level"), device="cpu")
     checked = 0

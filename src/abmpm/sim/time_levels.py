@@ -29,14 +29,15 @@ one range): a level-0 particle whose cell is farther than SORT_HALO cells from t
 *core* (region cells, cells holding level-1 particles; ``SlowSet.grow_near``). Near a
 static collider S takes CPIC's masks at the open (the compatible nodes of its frozen
 positions) and its G2P at the close casts the whole step's path, as original mode does
-with a step T. S must stay more than GUARD_HALO = 1 cell from the core: outside the zone
-beside the region (BESIDE_CELLS, where level-0 particles also scatter onto the fine grid)
-and out of every cell holding level-1 mass, so S never touches the fine grid and no pass
-of F reads a mark of S. It may share coarse nodes with a level-1 particle's overlap
-scatter (Eq. 8), which reaches only nodes marked as reached by level 0: S's nodes are
-marked at the open and after every substep's grid update (``slow_mark``), so a child
-meets S there as it meets the level-0 particles that step with it (docs/method.md has
-the guard's history and its measurements). The solver adds up how far the particles can
+with a step T. S must stay more than GUARD_HALO cells from the core: at least outside the
+zone beside the region (BESIDE_CELLS, where level-0 particles also scatter onto the fine
+grid) and out of every cell holding level-1 mass, so S never touches the fine grid and no
+pass of F reads a mark of S. With a guard under 3 cells S may share coarse nodes with a
+level-1 particle's overlap scatter (Eq. 8), which reaches only nodes marked as reached by
+level 0: S's nodes are marked at the open and after every substep's grid update
+(``slow_mark``), so a child would meet S there as it meets the level-0 particles that step
+with it. The guard is 3 cells, where two coarse stencils share no node (a guard of 1 was
+measured and not kept: docs/method.md, "A time step per level"). The solver adds up how far the particles can
 have moved since that sort (each substep dt times the fastest fast particle, each step
 of S its length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO
 cells, the next open sorts (and chooses S) again. Frame ends sort anyway. A split while
@@ -65,8 +66,8 @@ from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
 
-GUARD_HALO = 1  # coarse cells: no S particle this close to the core (the drift bound keeps it so)
-SORT_HALO = 3  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
+GUARD_HALO = 3  # coarse cells: no S particle this close to the core (the drift bound keeps it so)
+SORT_HALO = 5  # coarse cells: S at a sort lies beyond this (2 cells of drift before a re-sort)
 
 
 @wp.struct
