@@ -37,11 +37,12 @@ level-1 particle's overlap scatter (Eq. 8), which reaches only nodes marked as r
 level 0: S's nodes are marked at the open and after every substep's grid update
 (``slow_mark``), so a child would meet S there as it meets the level-0 particles that step
 with it. The guard is 3 cells, where two coarse stencils share no node (a guard of 1 was
-measured and not kept: docs/method.md, "A time step per level"). The solver adds up how far the particles can
-have moved since that sort (each substep dt times the fastest fast particle, each step
-of S its length times S's fastest); before the sum reaches SORT_HALO - GUARD_HALO
-cells, the next open sorts (and chooses S) again. Frame ends sort anyway. A split while
-a step of S is open sorts the other particles only: S keeps its place in the storage.
+measured and not kept: docs/method.md, "A time step per level"). The solver adds up how
+far the particles can have moved since that sort (each substep dt times the fastest fast
+particle, each step of S its length times S's fastest); before the sum reaches
+SORT_HALO - GUARD_HALO cells, the next open sorts (and chooses S) again. Frame ends sort
+anyway. A split while a step of S is open sorts the other particles only: S keeps its
+place in the storage.
 """
 
 from __future__ import annotations
