@@ -14,7 +14,7 @@ from .boundary import boundary_response
 from .colliders import CONTACT_BAND, ColliderArrays, ColorField, node_contact
 from .grid import HOLDS_LEVEL1, GridSpec, node_coords, node_position
 from .parallel import ThreadSums, add_thread_sums
-from .time_levels import SlowNodes, add_slow, keep_slow_share, slow_mark
+from .time_levels import SlowNodes, add_slow, keep_slow_share
 
 wp.set_module_options({"enable_backward": False})
 
@@ -84,4 +84,4 @@ def grid_update(
         grid_mv[n] = wp.vec3(0.0)
         grid_m[n] = 0.0
         if clear_overlap != 0:
-            overlap[n] = slow_mark(slow, n)
+            overlap[n] = 0

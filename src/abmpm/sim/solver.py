@@ -275,7 +275,7 @@ class MPMSolver:
                 if self.slow.may_be_near():  # S chosen again
                     self.sort_by_cell(state)
                 self.slow.scatter(state, self._ranges["slow"][0], self.materials, self.models, self.cpic,
-                                  self.grid.color, self._cmask, self._occ)
+                                  self.grid.color, self._cmask)
         self._dt.fill_(dt)
         self._dt_host = dt
         self._signals.reset()

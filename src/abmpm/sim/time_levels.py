@@ -29,15 +29,11 @@ one range): a level-0 particle whose cell is farther than SORT_HALO cells from t
 *core* (region cells, cells holding level-1 particles; ``SlowSet.grow_near``). Near a
 static collider S takes CPIC's masks at the open (the compatible nodes of its frozen
 positions) and its G2P at the close casts the whole step's path, as original mode does
-with a step T. S must stay more than GUARD_HALO cells from the core: at least outside the
-zone beside the region (BESIDE_CELLS, where level-0 particles also scatter onto the fine
-grid) and out of every cell holding level-1 mass, so S never touches the fine grid and no
-pass of F reads a mark of S. With a guard under 3 cells S may share coarse nodes with a
-level-1 particle's overlap scatter (Eq. 8), which reaches only nodes marked as reached by
-level 0: S's nodes are marked at the open and after every substep's grid update
-(``slow_mark``), so a child would meet S there as it meets the level-0 particles that step
-with it. The guard is 3 cells, where two coarse stencils share no node (a guard of 1 was
-measured and not kept: docs/method.md, "A time step per level"). The solver adds up how
+with a step T. S must stay at least GUARD_HALO = 3 cells from the core: two particles'
+coarse stencils (x +- 1.5 dx) share no node more than three cells apart, so no S particle
+shares a node with a level-1 particle's overlap scatter or reaches a fine node a
+level-1 particle gathers from (a guard of 1 cell, with S's nodes marked for the overlap,
+was measured and not kept: docs/method.md, "A time step per level"). The solver adds up how
 far the particles can have moved since that sort (each substep dt times the fastest fast
 particle, each step of S its length times S's fastest); before the sum reaches
 SORT_HALO - GUARD_HALO cells, the next open sorts (and chooses S) again. Frame ends sort
@@ -55,7 +51,7 @@ import warp as wp
 from scipy import ndimage
 
 from .colliders import ALL_NODES, ColorField, node_bit
-from .grid import REACHED_BY_LEVEL0, GridSpec
+from .grid import GridSpec
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .p2g import own_side_mask, record_reach
 from .parallel import (CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, REACH_STRIDE, Launcher, Reach, ThreadSums, add_thread_sums,
@@ -87,26 +83,6 @@ def add_slow(slow: SlowNodes, n: int, dt: float, m: float, mv: wp.vec3):
     if slow.on == 0:
         return m, mv
     return m + slow.m[n], mv + slow.p[n] + dt * slow.f[n]
-
-
-@wp.func
-def slow_mark(slow: SlowNodes, n: int):
-    """The overlap mark node ``n`` starts the next substep with: reached by level 0 where S
-    holds mass (a level-1 particle's overlap scatter then reaches it, as it reaches the nodes
-    of level-0 particles that step with it), else none."""
-    mark = int(0)
-    if slow.on != 0:
-        if slow.m[n] > 0.0:
-            mark = REACHED_BY_LEVEL0
-    return mark
-
-
-@wp.kernel
-def mark_slow_nodes(first: int, m: wp.array(dtype=float), overlap: wp.array(dtype=wp.int32)):
-    # at a block's open: S's nodes reached by level 0 for the first substep's overlap scatter
-    n = wp.tid() + first
-    if m[n] > 0.0:
-        overlap[n] = REACHED_BY_LEVEL0
 
 
 @wp.func
@@ -253,11 +229,10 @@ class SlowSet:
         return self.near.flatten()
 
     def scatter(self, state: ParticleState, slow: tuple[int, int], materials: wp.array, models, cpic: bool,
-                color: ColorField, cmask: wp.array, overlap: wp.array) -> None:
+                color: ColorField, cmask: wp.array) -> None:
         """Open a block: S onto its node arrays (threads into private sums, added in part order);
         with ``cpic``, each S particle near a collider onto its side's nodes (``color``, the
-        coarse grid's), its mask into ``cmask`` for the close's G2P; its nodes marked in the
-        coarse grid's ``overlap`` marks as reached by level 0."""
+        coarse grid's), its mask into ``cmask`` for the close's G2P."""
         s = self.nodes
         s.m.zero_()
         s.p.zero_()
@@ -279,8 +254,6 @@ class SlowSet:
                                  [private.sums, self._pf, s.p, s.m, s.f, self.coarse.node_count, chunk],
                                  label="slow sums", min_range=64)
             self.launcher.launch(reset_reach, private.extra + 1, [private.bounds], label="reset slow")
-        self.launcher.launch(mark_slow_nodes, self.coarse.node_count, [s.m, overlap], label="slow marks",
-                             min_range=4096)
         s.on = 1
         self.elapsed, self.taken = 0.0, 0
 
