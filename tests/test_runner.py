@@ -419,6 +419,25 @@ def test_particles_inside_a_closed_collider_are_noted(tmp_path):
     assert "notes" not in quiet_run(tiny_scene(), tmp_path / "clear", frames=1, preview=False)
 
 
+def test_material_against_a_wall_between_node_planes_is_noted():
+    # dx 0.03 m in a 0.4 m box: 13.33 cells, so the walls at x, y, z = 0.4 m lie between node
+    # planes and the grid stops material at 0.42 m. The water fills the box along z, so it
+    # starts about a centimetre short of where it is held (a tank so set up surges into the
+    # gap, in every mode: docs/method.md, "Domain walls"); the run says so, naming the field
+    # and the axis.
+    # With dx 0.05 m (8 cells) or water short of the wall there is nothing to say.
+    from abmpm.runner import _walls_between_nodes
+
+    off = tiny_scene()
+    off.simulation.dx = 0.03
+    notes = _walls_between_nodes(off, Simulation(off, device="cpu"))
+    assert len(notes) == 1 and notes[0].startswith("simulation.domain_max: the wall at z = 0.4 m"), notes
+    assert "0.42 m" in notes[0] and "domain_max z = 0.39 or 0.42" in notes[0], notes[0]
+    assert _walls_between_nodes(tiny_scene(), Simulation(tiny_scene(), device="cpu")) == []
+    short = off.model_copy(update={"bodies": [BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.15, 0.2, 0.3))]})
+    assert _walls_between_nodes(short, Simulation(short, device="cpu")) == []
+
+
 def test_a_collider_that_can_touch_nothing_is_noted(tmp_path):
     # a static sheet wholly outside the domain (a typo in its center or units) does nothing;
     # the run says so

@@ -98,6 +98,7 @@ def run(
         _check_initial_state(scene, sim)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
     notes += _idle_colliders(scene, sim) + [n for n in (slow_start_note(scene, sim.mode),) if n]
+    notes += [] if resume else _walls_between_nodes(scene, sim)
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
@@ -223,6 +224,36 @@ def _idle_colliders(scene: Scene, sim) -> list[str]:
         elif c.motion.is_static and (np.any(mesh.bounds[0] > hi) or np.any(mesh.bounds[1] < lo)):
             notes.append(f"colliders[{i}]: it lies wholly outside the domain ({np.round(mesh.bounds[0], 4).tolist()} "
                          f"to {np.round(mesh.bounds[1], 4).tolist()}), so it touches nothing; check its center and size")
+    return notes
+
+
+def _walls_between_nodes(scene: Scene, sim) -> list[str]:
+    """A note for each upper domain wall that lies between two node planes of the grid and
+    that material starts against. A wall acts at the nodes on and beyond its plane, so such
+    a wall stops material at the next node plane, up to a cell further out; material that
+    fills the box to the wall starts that far short of where the grid holds it and flows
+    into the gap (a tank of water at rest does not stay at rest; docs/method.md, "Domain
+    walls"). A lower wall always lies on a node plane (the grid is anchored there)."""
+    st, notes = scene.simulation, []
+    dx = sim.solver.grid.dx  # the grid of the level-0 particles (finest mode's only grid)
+    lo, hi = np.asarray(st.domain_min, dtype=np.float64), np.asarray(st.domain_max, dtype=np.float64)
+    p = sim.particles()
+    if len(p.x) == 0:
+        return notes
+    edge = p.x.astype(np.float64) + 0.5 * np.cbrt(p.volume.astype(np.float64))[:, None]  # each particle's box
+    spacing = float(np.cbrt(np.median(p.volume)))
+    for d, axis in enumerate("xyz"):
+        cells = (hi[d] - lo[d]) / dx
+        plane = lo[d] + math.ceil(cells - 1.0e-3) * dx  # where the grid stops material (grid_update.domain_walls)
+        reach = float(edge[:, d].max())
+        if plane - hi[d] <= 1.0e-3 * dx or hi[d] - reach > 0.5 * spacing or plane - reach <= 0.25 * spacing:
+            continue
+        n = math.floor(cells)
+        notes.append(f"simulation.domain_max: the wall at {axis} = {hi[d]:g} m lies between the grid's node planes "
+                     f"({cells:.4g} cells of {dx:g} m), so the grid stops material at {axis} = {plane:.4g} m; the "
+                     f"bodies reach the wall, so they start {1e3 * (plane - reach):.3g} mm short of it and will flow "
+                     f"into that gap (water filling the box will not stay at rest); for a wall on a node plane set "
+                     f"domain_max {axis} = {lo[d] + n * dx:.6g} or {lo[d] + (n + 1) * dx:.6g}")
     return notes
 
 
