@@ -33,7 +33,10 @@ SEEDS4, SEEDS8 = (0, 1, 2, 3), tuple(range(8))
 # and 0.045 a quarter cell higher, its 1-cell hole 0.0176 and 0.0099
 SLITS = [(0.5, 2, SEEDS8, 0.0, 0.0), (1.0, 2, SEEDS4, 0.0, 0.0), (0.5, 3, (0,), 0.0, 0.0), (0.75, 3, (0,), 0.0, 0.0),
          (1.0, 3, (0,), 0.0, 0.0), (1.5, 3, (0,), 0.0, 0.0), (0.75, 4, (0,), 0.0, 0.0), (0.75, 3, (0,), 20.0, 0.0),
-         (0.75, 3, (0,), 0.0, 0.25)]
+         (0.75, 3, (0,), 0.0, 0.25),
+         # from the audit of 2026-11-29 (docs/benchmarks.md, "An audit outside the matrix"): the
+         # issue's widths at the factors the rows above leave out
+         (0.5, 4, (0,), 0.0, 0.0), (1.0, 4, (0,), 0.0, 0.0), (1.5, 2, SEEDS4, 0.0, 0.0)]
 # round holes (diameter in coarse cells, b, lift), one seed: finest's 1-cell hole at b = 3
 # reads 0.0176 and 0.0178 on seeds 0 and 1. The 0.5-cell slit at b = 3 and the 0.75-cell hole
 # at b = 4 joined from an audit of cases outside the matrix (docs/benchmarks.md).
