@@ -248,12 +248,12 @@ def _walls_between_nodes(scene: Scene, sim) -> list[str]:
         reach = float(edge[:, d].max())
         if plane - hi[d] <= 1.0e-3 * dx or hi[d] - reach > 0.5 * spacing or plane - reach <= 0.25 * spacing:
             continue
-        n = math.floor(cells)
+        n = math.floor((hi[d] - lo[d]) / st.dx + 1.0e-6)  # whole cells of the scene's dx: on a node plane of every grid
         notes.append(f"simulation.domain_max: the wall at {axis} = {hi[d]:g} m lies between the grid's node planes "
                      f"({cells:.4g} cells of {dx:g} m), so the grid stops material at {axis} = {plane:.4g} m; the "
                      f"bodies reach the wall, so they start {1e3 * (plane - reach):.3g} mm short of it and will flow "
                      f"into that gap (water filling the box will not stay at rest); for a wall on a node plane set "
-                     f"domain_max {axis} = {lo[d] + n * dx:.6g} or {lo[d] + (n + 1) * dx:.6g}")
+                     f"domain_max {axis} = {lo[d] + n * st.dx:.6g} or {lo[d] + (n + 1) * st.dx:.6g}")
     return notes
 
 
