@@ -280,6 +280,17 @@ def _one_step(text: str) -> float:
     return c
 
 
+def _halo(text: str) -> int:
+    """--halo: a whole number of coarse cells, 0 to 8."""
+    try:
+        h = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number of coarse cells, got {text!r}") from None
+    if not 0 <= h <= 8:
+        raise argparse.ArgumentTypeError(f"must be 0 to 8 coarse cells, got {text}")
+    return h
+
+
 def run_bench(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="abmpm bench", description=__doc__)
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
@@ -304,6 +315,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--criterion", choices=get_args(Refinement.model_fields["criterion"].annotation), default=None,
                     help="interface suite: the plate cases' adaptive runs refine by this criterion instead of "
                          "the default (both: every sheet's band too, closer to finest at more cost)")
+    ap.add_argument("--halo", type=_halo, default=None, metavar="CELLS",
+                    help="interface suite: the plate cases' and the thrown water's adaptive runs grow the refined "
+                         "region by this many coarse cells instead of the scenes' 1 (2: closer to finest, more cost)")
     ap.add_argument("--seeds", type=int, default=1,
                     help="interface suite: the plate cases and the thrown water over at least this many jitter "
                          "seeds each (one run's chaos moves some rows by 5-15%%; 4 seeds take about 4x as long)")
@@ -321,8 +335,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
 
     if args.one_step is not None and args.suite != "interface":
         ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
-    if args.criterion is not None and args.suite != "interface":
-        ap.error("--criterion: only the interface suite takes it (add --suite interface)")
+    for option in ("criterion", "halo"):
+        if getattr(args, option) is not None and args.suite != "interface":
+            ap.error(f"--{option}: only the interface suite takes it (add --suite interface)")
     if args.seeds != 1 and (args.suite != "interface" or args.seeds < 1):
         ap.error(f"--seeds {args.seeds}: a count of at least 1, for the interface suite only (add --suite interface)")
     device = choose_device(args.device)
@@ -394,7 +409,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
                   + (f"lists {row['lists_ns']} ns, " if row["lists_built"] else "no lists (they would not pay), ")
                   + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
-    interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion, seeds=args.seeds)
+    interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion, seeds=args.seeds,
+                                     halo=args.halo)
                  if args.suite == "interface" else {})
     scaling = []
     if args.suite == "scaling":
@@ -404,7 +420,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         "device": device, "machine": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
         "adaptive": adaptive, "colliders": colliders, "interface": interface,
-        "interface_options": {"one_step": args.one_step, "criterion": args.criterion, "seeds": args.seeds}
+        "interface_options": {"one_step": args.one_step, "criterion": args.criterion, "seeds": args.seeds,
+                              "halo": args.halo}
         if interface else {},
         "scaling": scaling,
         "reconstruction": reconstruction,

@@ -165,7 +165,8 @@ def one_step(scene: sm.Scene, cfl: float) -> float:
 
 def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
              tilt: float = 0.0, hole: bool = False, lift: float = 0.0, fluid: dict | None = None,
-             step: float | None = None, criterion: str | None = None, jet: float = 0.0) -> dict:
+             step: float | None = None, criterion: str | None = None, jet: float = 0.0,
+             halo: int | None = None) -> dict:
     """Mass through (below the plate's plane), steps and wall seconds of one slit case
     in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
     mass through in ``through_seeds``); ``tilt`` and ``lift`` as in ``plate_with_slit``; ``hole``:
@@ -176,7 +177,9 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
     only at one step does the ratio to finest measure the level interface alone. ``criterion``:
     the adaptive run's refinement criterion instead of the default ("both" refines the
     plate's whole band: docs/benchmarks.md, "The plate matrix over 24 cases, four ways"); ``jet``:
-    the water thrown at the plate (``water_over_plate``), the mass through counted beyond it."""
+    the water thrown at the plate (``water_over_plate``), the mass through counted beyond it;
+    ``halo``: the adaptive run's refinement halo instead of the default (docs/benchmarks.md, "The
+    halo as the accuracy knob")."""
     out = {}
     for mode in MODES:
         runs = []
@@ -190,6 +193,8 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
                 scene.simulation.max_dt = one_step(scene, step)
             if criterion is not None:
                 scene.simulation.refinement.criterion = criterion
+            if halo is not None:
+                scene.simulation.refinement.halo = halo
             sim = Simulation(scene, device=device)
             up = sim.colliders.body_meshes()[0].face_normals[0]
             up = up if (up[1] > 0) == (jet <= 0.0) else -up  # against the way through
@@ -417,10 +422,10 @@ def run_blade_cut(seconds: float, device: str, b: int = 2) -> dict:
 
 
 def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None,
-                        criterion: str | None = None, seeds: int = 1) -> dict:
+                        criterion: str | None = None, seeds: int = 1, halo: int | None = None) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results. ``step``: the
-    plate cases at one fixed step for every mode, ``criterion``: their adaptive runs with
-    that refinement criterion (``run_slit``), ``seeds``: the plate cases and the thrown water
+    plate cases at one fixed step for every mode, ``criterion`` and ``halo``: their adaptive runs
+    with that refinement criterion and halo (``run_slit``), ``seeds``: the plate cases and the thrown water
     over at least that many jitter seeds (a single run's chaos moves some rows by 5-15%:
     docs/benchmarks.md); the other cases as always."""
     results = {}
@@ -435,8 +440,9 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
     for name, w, b, own, tilt, hole, lift, *fluid in passages:
         runs = tuple(range(max(len(own), seeds)))
         r = results[name] = run_slit(w, b, seconds, device, runs, tilt, hole, lift, fluid[0] if fluid else None, step,
-                                     criterion)
+                                     criterion, halo=halo)
         at = (f" (one step, cfl {step:g} at rest)" if step else "") + (f" (criterion {criterion})" if criterion else "")
+        at += f" (halo {halo})" if halo is not None else ""
         print(f"{name}{at}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
@@ -447,7 +453,7 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
         name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {'up' if jet > 0 else 'down'} at it"
         jets.append(name)
         r = results[name] = run_slit(w, b, JET_SECONDS, device, tuple(range(seeds)), hole=hole, step=step,
-                                     criterion=criterion, jet=jet)
+                                     criterion=criterion, jet=jet, halo=halo)
         print(f"{name}: mass through adaptive / finest {r['through_ratio']} (finest {r['finest']['through']:.4f}, "
               f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x"
               f"{f' ({seeds} seeds{seed_error(r)})' if seeds > 1 else ''}", flush=True)
