@@ -22,6 +22,17 @@ def positive_int(text: str, what: str) -> int:
     return n
 
 
+def int_between(text: str, what: str, lo: int, hi: int) -> int:
+    """An argparse type: ``what`` (e.g. "a port number"), a whole number from lo to hi."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if not lo <= n <= hi:
+        raise argparse.ArgumentTypeError(f"{what} is between {lo} and {hi}, got {n}")
+    return n
+
+
 def positive_float(text: str, what: str) -> float:
     """An argparse type: ``what`` (e.g. "a number of seconds"), finite and above 0."""
     try:

@@ -3,11 +3,10 @@
 
 from __future__ import annotations
 
-import argparse
-
 from rich.console import Console
 from rich.markup import escape
 
+from abmpm.arguments import int_between
 from abmpm.errors import AbmpmError
 from abmpm.sim.parallel import default_threads
 
@@ -41,10 +40,4 @@ def check_threads_env() -> None:
 
 def port_arg(text: str) -> int:
     """--port N: 0 (any free port) to 65535."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= n <= 65535:
-        raise argparse.ArgumentTypeError(f"a port is between 0 and 65535, got {n}")
-    return n
+    return int_between(text, "a port number", 0, 65535)

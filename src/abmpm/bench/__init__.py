@@ -22,7 +22,7 @@ from typing import get_args
 import numpy as np
 import warp as wp
 
-from ..arguments import frames_arg, positive_float, threads_arg
+from ..arguments import frames_arg, int_between, positive_float, threads_arg
 from ..io.summary import write_json
 from ..scene.model import (
     BoxBody,
@@ -281,14 +281,8 @@ def _one_step(text: str) -> float:
 
 
 def _halo(text: str) -> int:
-    """--halo: a whole number of coarse cells, 0 to 8."""
-    try:
-        h = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a whole number of coarse cells, got {text!r}") from None
-    if not 0 <= h <= 8:
-        raise argparse.ArgumentTypeError(f"must be 0 to 8 coarse cells, got {text}")
-    return h
+    """--halo: coarse cells, 0 to 8."""
+    return int_between(text, "a halo in coarse cells", 0, 8)
 
 
 def run_bench(argv: list[str] | None = None) -> dict:
