@@ -428,14 +428,18 @@ def test_material_against_a_wall_between_node_planes_is_noted():
     # With dx 0.05 m (8 cells) or water short of the wall there is nothing to say.
     from abmpm.runner import _walls_between_nodes
 
+    def notes(scene):
+        sim = Simulation(scene, device="cpu")
+        return _walls_between_nodes(scene, sim, sim.particles())
+
     off = tiny_scene()
     off.simulation.dx = 0.03
-    notes = _walls_between_nodes(off, Simulation(off, device="cpu"))
-    assert len(notes) == 1 and notes[0].startswith("simulation.domain_max: the wall at z = 0.4 m"), notes
-    assert "0.42 m" in notes[0] and "domain_max z = 0.39 or 0.42" in notes[0], notes[0]
-    assert _walls_between_nodes(tiny_scene(), Simulation(tiny_scene(), device="cpu")) == []
+    said = notes(off)
+    assert len(said) == 1 and said[0].startswith("simulation.domain_max: the wall at z = 0.4 m"), said
+    assert "0.42 m" in said[0] and "domain_max z = 0.39 or 0.42" in said[0], said[0]
+    assert notes(tiny_scene()) == []
     short = off.model_copy(update={"bodies": [BoxBody(material="water", min=(0.0, 0.0, 0.0), max=(0.15, 0.2, 0.3))]})
-    assert _walls_between_nodes(short, Simulation(short, device="cpu")) == []
+    assert notes(short) == []
 
 
 def test_a_collider_that_can_touch_nothing_is_noted(tmp_path):

@@ -94,11 +94,12 @@ def run(
     writers = build_writers(scene.output, preview=preview, view=view)  # refuses USD without usd-core
 
     sim = Simulation(scene, device)
-    if not resume:
-        _check_initial_state(scene, sim)
-    resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, sim))
+    start = None if resume else sim.particles()  # read from the device once for the checks and notes
+    if start is not None:
+        _check_initial_state(scene, start)
+    resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, start))
     notes += _idle_colliders(scene, sim) + [n for n in (slow_start_note(scene, sim.mode),) if n]
-    notes += [] if resume else _walls_between_nodes(scene, sim)
+    notes += [] if resume else _walls_between_nodes(scene, sim, start)
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")
@@ -194,15 +195,14 @@ def _finish(writers: list[Writer], ctx: RunContext) -> None:
 # --------------------------------------------------------------------------- checks
 
 
-def _trapped(scene: Scene, sim) -> list[str]:
-    """A note for each closed collider that particles start inside: CPIC keeps them on
-    the side they start on, so they stay there."""
-    notes, x = [], None
+def _trapped(scene: Scene, p) -> list[str]:
+    """A note for each closed collider that particles (``p``, at the start) start inside:
+    CPIC keeps them on the side they start on, so they stay there."""
+    notes, x = [], p.x
     for i, c in enumerate(scene.colliders):
         mesh = collider_mesh(c, scene.resolve, f"colliders[{i}]")
         if not mesh.is_watertight:
             continue
-        x = sim.particles().x if x is None else x
         n = int(inside_mesh(x, mesh).sum())
         if n:
             notes.append(f"colliders[{i}]: {n} of the {len(x)} particles start inside this closed collider and stay "
@@ -227,9 +227,9 @@ def _idle_colliders(scene: Scene, sim) -> list[str]:
     return notes
 
 
-def _walls_between_nodes(scene: Scene, sim) -> list[str]:
+def _walls_between_nodes(scene: Scene, sim, p) -> list[str]:
     """A note for each upper domain wall that lies between two node planes of the grid and
-    that material starts against. A wall acts at the nodes on and beyond its plane, so such
+    that material (the particles ``p``, at the start) starts against. A wall acts at the nodes on and beyond its plane, so such
     a wall stops material at the next node plane, up to a cell further out; material that
     fills the box to the wall starts that far short of where the grid holds it and flows
     into the gap (a tank of water at rest does not stay at rest; docs/method.md, "Domain
@@ -237,7 +237,6 @@ def _walls_between_nodes(scene: Scene, sim) -> list[str]:
     st, notes = scene.simulation, []
     dx = sim.solver.grid.dx  # the grid of the level-0 particles (finest mode's only grid)
     lo, hi = np.asarray(st.domain_min, dtype=np.float64), np.asarray(st.domain_max, dtype=np.float64)
-    p = sim.particles()
     if len(p.x) == 0:
         return notes
     edge = p.x.astype(np.float64) + 0.5 * np.cbrt(p.volume.astype(np.float64))[:, None]  # each particle's box
@@ -257,10 +256,9 @@ def _walls_between_nodes(scene: Scene, sim) -> list[str]:
     return notes
 
 
-def _check_initial_state(scene: Scene, sim) -> None:
-    """Refuse to start from a state that is not finite in single precision (a frame 0
-    of NaN would be written as if it were good)."""
-    p = sim.particles()
+def _check_initial_state(scene: Scene, p) -> None:
+    """Refuse to start from particles ``p`` that are not finite in single precision (a
+    frame 0 of NaN would be written as if it were good)."""
     for name in ("x", "v", "mass", "volume", "C", "F"):
         a = getattr(p, name)
         bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1)
