@@ -384,14 +384,15 @@ class MPMSolver:
             # the stress kept for the fine pass; the overlap marks; where the fine grid moves level 0
             kept = {"dense": [], "level0": [self._tau, self._occ], "overlap": [self._tau, self._occ, self._on_fine],
                     "sparse": [self._tau, self._on_fine, self.refiner and self.refiner.beside, self.grid.spec]}[name]
-            # the overlap: the children the coarse grid moves first, then the rest (p2g_overlap)
-            for extra in ([0], [1]) if name == "overlap" else ([],):
+            # the overlap: the children the coarse grid moves first, then the rest (p2g_overlap);
+            # each launch a site of its own, so that its recorded launch replays unchanged
+            for k, extra in enumerate(([0], [1]) if name == "overlap" else ([],)):
                 for site, (first, count) in enumerate(self._ranges[PASS_LEVEL[name]]):
                     self.launcher.launch(kernel, count,
                                          lambda part, first, count: [*common, *private.parts[part],
                                                                      private.reach[part], *kept, *extra],
                                          start=first, label=f"P2G {g.name}{PASS_LABEL[name]}",
-                                         min_range=MIN_TRANSFER_RANGE, site=site)
+                                         min_range=MIN_TRANSFER_RANGE, site=2 * site + k)
 
     def grid_update(self) -> None:
         """Momentum to velocity, gravity, contact and walls on every grid (Eqs. 3-4, 22)."""
