@@ -482,3 +482,24 @@ def _thin_box_through_the_water():
     from abmpm.scene import model as sm
 
     return sm.ThinBoxCollider(size=(0.4, 0.05, 0.4), center=(0.2, 0.1, 0.2))  # through the water block
+
+
+def test_an_adaptive_run_that_refined_most_of_its_material_says_finest_may_be_as_fast(tmp_path):
+    # With a refinement box over the whole domain every particle splits into b^3 = 8
+    # children: finest mode would hold as many particles as adaptive mode does, at a
+    # third of the cost of each particle-step (docs/benchmarks.md, "When adaptive mode
+    # pays"), and the run says so. A box over a corner the material never reaches refines
+    # nothing (finest would hold 8 times the particles): nothing to say; nor in finest mode.
+    from abmpm.scene.model import with_mode
+
+    def notes(box, mode="adaptive"):
+        scene = with_mode(tiny_scene(), mode, factor=2, boxes=[box])
+        summary = quiet_run(scene, tmp_path / f"{mode}{box}", frames=1, preview=False)
+        return [n for n in summary.get("notes", []) if n.startswith("adaptive mode refined")]
+
+    whole = ((0.0, 0.0, 0.0), (0.4, 0.4, 0.4))
+    said = notes(whole)
+    assert len(said) == 1 and "finest mode would hold only 1.0 times its particles" in said[0], said
+    assert "refined 100% of the material" in said[0], said[0]
+    assert notes(((0.35, 0.35, 0.0), (0.4, 0.4, 0.05))) == []
+    assert notes(whole, mode="finest") == []

@@ -155,6 +155,9 @@ def run(
         except KeyboardInterrupt as exc:
             ctx.status, message, err = "interrupted", "interrupted by the user", exc
         sim_seconds = time.perf_counter() - t_sim - io_seconds
+        for note in _refined_share(scene, sim):
+            notes.append(note)
+            bar.print(f"[yellow]{escape(note)}[/yellow]")
         ctx.summary = make_summary(ctx, message, sim_seconds, io_seconds, sim.steps - steps0)
         if notes:
             ctx.summary["notes"] = notes
@@ -225,6 +228,30 @@ def _idle_colliders(scene: Scene, sim) -> list[str]:
             notes.append(f"colliders[{i}]: it lies wholly outside the domain ({np.round(mesh.bounds[0], 4).tolist()} "
                          f"to {np.round(mesh.bounds[1], 4).tolist()}), so it touches nothing; check its center and size")
     return notes
+
+
+# What an adaptive particle-step costs against a finest one on a CPU: 2.2-3.5 times, measured
+# (docs/benchmarks.md, "When adaptive mode pays"). Below this many finest particles per
+# adaptive one, finest mode is about as fast.
+ADAPTIVE_PARTICLE_COST = 3.0
+
+
+def _refined_share(scene: Scene, sim) -> list[str]:
+    """A note after an adaptive run on a CPU that refined so much of its material that
+    finest mode would have held under ADAPTIVE_PARTICLE_COST times its particles (the
+    mean over the run's frames): there finest mode, the reference, is likely as fast."""
+    if sim.mode != "adaptive" or sim.device != "cpu" or not sim.history:
+        return []
+    n0, n1 = np.mean([h["count_per_level"][:2] for h in sim.history], axis=0)
+    family = scene.simulation.refinement.factor ** 3  # a level-0 particle is that many finest ones
+    ratio = (n0 * family + n1) / max(n0 + n1, 1.0)
+    if ratio >= ADAPTIVE_PARTICLE_COST:
+        return []
+    share = n1 / family / max(n0 + n1 / family, 1e-9)
+    return [f"adaptive mode refined {share:.0%} of the material over this run: finest mode would hold only "
+            f"{ratio:.1f} times its particles, and on a CPU an adaptive particle-step costs 2-3.5 times a finest "
+            "one, so finest mode (the reference) is likely as fast here. Adaptive mode pays where a small part "
+            "of the material is refined (docs/benchmarks.md, \"When adaptive mode pays\")"]
 
 
 def _walls_between_nodes(scene: Scene, sim, p) -> list[str]:
