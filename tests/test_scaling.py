@@ -67,3 +67,26 @@ def test_the_scaling_suite_runs_end_to_end(tmp_path, monkeypatch):
     assert out.with_suffix(".png").stat().st_size > 0
     assert np.isfinite(row["adaptive_over_original"])
     assert row["per_level_floor"] == pytest.approx(per_level_floor(row), abs=1e-3) and row["per_level_floor"] >= 1.0
+
+
+def test_the_adaptive_suite_measures_each_level_against_its_own_mode():
+    # `abmpm bench --suite adaptive` also prices each particle at its own level's mode (a
+    # level-0 particle-step at original's cost, a level-1 one at finest's): with every
+    # particle split (a box over the domain) that yardstick is finest's alone, with none
+    # split (a box the water never reaches) original's alone
+    from abmpm.bench import time_modes
+    from abmpm.scene.model import BoxBody, Fluid, Scene, SimulationSettings
+
+    def scene(box):
+        return Scene(name="levels", simulation=SimulationSettings(
+            domain_max=(0.4, 0.4, 0.4), dx=0.05, fps=30, refinement={"mode": "adaptive", "factor": 2, "boxes": [box]}),
+            materials=[Fluid(name="water")], bodies=[BoxBody(material="water", min=(0, 0, 0), max=(0.2, 0.2, 0.2))])
+
+    whole = time_modes(scene(((0.0, 0.0, 0.0), (0.4, 0.4, 0.4))), 1, "cpu")
+    assert whole["adaptive"]["mean_per_level"][0] == 0
+    assert whole["cost_per_particle_step_adaptive_over_own_levels"] == pytest.approx(
+        whole["adaptive"]["ns_per_particle_step"] / whole["finest"]["ns_per_particle_step"], rel=1e-3)
+    corner = time_modes(scene(((0.35, 0.35, 0.35), (0.4, 0.4, 0.4))), 1, "cpu")
+    assert corner["adaptive"]["mean_per_level"][1] == 0
+    assert corner["cost_per_particle_step_adaptive_over_own_levels"] == pytest.approx(
+        corner["adaptive"]["ns_per_particle_step"] / corner["original"]["ns_per_particle_step"], rel=1e-3)
