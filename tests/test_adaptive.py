@@ -80,7 +80,7 @@ def test_split_children_start_inside_the_domain_walls(b):
     # the wall (as close as the jittered fine lattice comes); the children's
     # velocities, hence mass and momentum, stay those of the split; a family clear of
     # the walls does not move.
-    from abmpm.sim.refine import WALL_GAP
+    from abmpm.sim.split import WALL_GAP
     h = 0.05  # the parent lattice spacing at dx = 0.1, 8 particles per cell
     x = np.array([[0.5, -0.01, 0.5], [0.5, 0.5, 1.004], [0.003, 0.02, 0.5], [0.5, 0.5, 0.5]], np.float32)
     rng = np.random.default_rng(3)
