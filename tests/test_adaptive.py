@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+import warp as wp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse import coo_matrix
@@ -14,17 +15,19 @@ from abmpm.scene import model as sm
 from abmpm.sim.colliders import PARTICLE_BAND
 from abmpm.sim.materials import material_params
 from abmpm.sim.solver import MPMSolver, SolverConfig
+from abmpm.sim.split import CHILD_JITTER, child_jitter, jitter_seed
 from abmpm.sim.state import ParticleState
 from abmpm.simulation import init_warp
 
 # --------------------------------------------------------------------------- split
 
 
-def split_everything(x, v, C, F, mass, b, material=None, history=None):
+def split_everything(x, v, C, F, mass, b, material=None, history=None, seed=0):
     """Run the split kernel on particles that all lie in a refined region (elastic unless
-    ``material``; ``history``: the particles' history scalar, J for a fluid)."""
+    ``material``; ``history``: the particles' history scalar, J for a fluid; ``seed``: the
+    scene's, which draws the children's jitter)."""
     init_warp()
-    solver = MPMSolver(SolverConfig((0, 0, 0), (1, 1, 1), 0.1, refine_factor=b),
+    solver = MPMSolver(SolverConfig((0, 0, 0), (1, 1, 1), 0.1, refine_factor=b, seed=seed),
                        [material_params(material or sm.Elastic(name="e"))], "cpu")
     n = len(x)
     arrays = {"x": x, "v": v, "C": C, "F": F, "mass": mass, "volume": mass / 1000.0}
@@ -34,6 +37,27 @@ def split_everything(x, v, C, F, mass, b, material=None, history=None):
     solver.reserve_ids(n)
     solver.set_region(np.ones(tuple(d - 1 for d in solver.grid.dims), dtype=bool), state)
     return state.numpy()
+
+
+@wp.kernel
+def jitter_of_keys(seed: int, keys: wp.array(dtype=int), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = child_jitter(seed, keys[i])
+
+
+def child_offsets(out, b):
+    """Each split child's jitter less its family's mean, in child spacings and in the
+    parent's undeformed frame (sim/split.py): what the split added to the child's
+    lattice point. ``out`` holds only children, of parents split with full jitter."""
+    ns = b**3
+    place = (out["id"] - out["id"].min()) % ns  # the child's place c in its family
+    keys = wp.array((out["family"] * ns + place).astype(np.int32), dtype=int, device="cpu")
+    jit = wp.zeros(len(keys), dtype=wp.vec3, device="cpu")
+    wp.launch(jitter_of_keys, len(keys), [jitter_seed(0), keys, jit], device="cpu")  # split_everything's seed
+    jit = jit.numpy().astype(np.float64)
+    for f in np.unique(out["family"]):
+        jit[out["family"] == f] -= jit[out["family"] == f].mean(axis=0)
+    return jit, place
 
 
 def random_particles(n, seed):
@@ -97,12 +121,18 @@ def test_split_children_start_inside_the_domain_walls(b):
     P0 = (mass[:, None].astype(np.float64) * v).sum(axis=0)
     P = (out["mass"][:, None].astype(np.float64) * out["v"]).sum(axis=0)
     assert np.abs(P - P0).max() <= 1e-5 * (mass * np.linalg.norm(v, axis=1)).sum()
-    for k in range(4):  # each family keeps its lattice: the centre moved, no child alone
-        kids = out["x"][out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]]
-        assert len(kids) == b**3
-        rel = kids - kids.mean(axis=0)
-        expect = (np.stack(np.meshgrid(*[np.arange(b)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / b - 0.5
-        assert np.allclose(np.sort((rel @ np.linalg.inv(F[k]).T / h).ravel()), np.sort(expect.ravel()), atol=1e-4)
+    # each family keeps its lattice: the centre moved, each child within its jitter (at most
+    # CHILD_JITTER child spacings from its lattice point, the family's mean taken out; a child
+    # the wall's gap stopped only nearer its point) of the lattice point d_c
+    jit, place = child_offsets(out, b)
+    d = (np.stack([place // (b * b), (place // b) % b, place % b], -1) + 0.5) / b - 0.5
+    for k in range(4):
+        fam = out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]
+        assert fam.sum() == b**3
+        rel = (out["x"][fam] - out["x"][fam].mean(axis=0)) @ np.linalg.inv(F[k]).T / h
+        assert np.abs(rel - d[fam]).max() <= CHILD_JITTER / b + 1e-4
+        if k == 3:  # clear of the walls: exactly its lattice plus its jitter
+            assert np.allclose(rel, d[fam] + jit[fam] / b, atol=1e-4)
     interior = out["x"][np.linalg.norm(out["x"] - x[3], axis=1) < h]
     assert np.allclose(interior.mean(axis=0), x[3], atol=1e-6)
 
@@ -126,8 +156,10 @@ def test_a_compressed_fluid_parent_splits_into_the_volume_it_fills(b):
     for k in range(3):
         kids = out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]
         assert kids.sum() == b**3 and np.allclose(out["history"][kids], J[k])
-        span = out["x"][kids].max(axis=0) - out["x"][kids].min(axis=0)  # (b - 1) child spacings
-        assert np.allclose(span, (b - 1) / b * h * J[k] ** (1 / 3), rtol=1e-5)
+        side = h * J[k] ** (1 / 3)  # the cube the parent fills now; less the children's jitter
+        points = out["x"][kids] - side / b * child_offsets(out, b)[0][kids]
+        span = points.max(axis=0) - points.min(axis=0)  # (b - 1) child spacings
+        assert np.allclose(span, (b - 1) / b * side, rtol=1e-5)
         assert np.allclose(out["x"][kids].mean(axis=0), x[k], atol=1e-6)
         assert np.isclose((out["volume"][kids] * out["history"][kids]).sum(), h**3 * J[k], rtol=1e-5)
 

@@ -38,6 +38,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         base_level=1 if mode == "finest" else 0,
         reconstruct=st.refinement.reconstruct,
         surface_threshold=st.refinement.surface_threshold,
+        seed=st.seed,
         time_steps=st.refinement.time_steps,
         stiffening=st.stiffening,
         cuda_graph=st.cuda_graph,
@@ -99,16 +100,17 @@ def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:
     """Particles of every body, as numpy arrays (deterministic by the scene's seed).
 
     ``split_factor`` b > 1: the particles may be split into b^3 children (adaptive
-    mode with something to refine). Their jitter is then that of the fine lattice,
-    JITTER * h / b, in absolute terms: a family inherits its parent's offset, so
-    with the coarse jitter two neighbouring families would overlap or leave a gap
-    of up to b/2 child spacings, where finest mode's particles are off by at most
-    1/4 of one (docs/method.md, "Split")."""
+    mode with something to refine). They are then sampled on their lattice points, not
+    jittered: each child is jittered about its own point when it splits (sim/split.py,
+    CHILD_JITTER), so that split material has finest mode's texture, where a parent's
+    offset would be shared by its whole family (docs/method.md, "Split children sampled
+    as finest samples")."""
     st = scene.simulation
     rng = np.random.default_rng(st.seed)
     parts = []
     for i, body in enumerate(scene.bodies):
-        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]", jitter=JITTER / split_factor)
+        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]",
+                        jitter=JITTER if split_factor == 1 else 0.0)
         n = len(x)
         mat = scene.materials[scene.material_index(body.material)]
         vol = particle_volume(st.dx, body.particles_per_cell)

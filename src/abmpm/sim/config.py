@@ -30,6 +30,9 @@ class SolverConfig:
     """Surface particle reconstruction after each split (paper Section 4.3)."""
     surface_threshold: float = DEFAULT_SURFACE_THRESHOLD
     """Its t_p (Eq. 16), in units of (mass of a full coarse cell) / dx."""
+    seed: int = 0
+    """The scene's random seed: with the particle ids it draws the split children's jitter
+    (sim/split.py), as it draws the sampling's (geometry/sampling.py)."""
     threads: int | None = None
     """CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored."""
     time_steps: str = "global"

@@ -259,25 +259,56 @@ def occupied_fraction(f: SurfaceField, g: GridSpec, x: wp.vec3):
     return phi / cell, grad * (g.inv_dx / cell)
 
 
+# The children's jitter along the surface's normal (sim/split.py), for a material that keeps
+# its lattice (a solid: carries_F), by the parent's depth below the smoothed surface in its
+# spacings h: none within JITTER_FROM h (the outermost parents' centres lie about h / 2 deep),
+# all of it from JITTER_FROM + JITTER_RAMP h (the next layer, about 3 h / 2 deep), linear
+# between. Along the surface the jitter stays whole. A solid keeps the surface it is split
+# with for the whole run; a fluid's children keep their whole jitter, finest's texture, which
+# its flow soon replaces by its own disorder (docs/method.md, "Split children sampled as
+# finest samples": flattening a fluid's too moved 4 of 26 plate cases out of 10% of finest).
+JITTER_FROM = wp.constant(0.75)
+JITTER_RAMP = wp.constant(0.5)
+
+
+@wp.func
+def flat_jitter(phi: float, grad: wp.vec3, h: float, inv_dx: float):
+    """The direction u along which a family's children lose part of their jitter: the
+    smoothed surface's normal, scaled so that |u|^2 is the share of the jitter's normal
+    part taken out (``split_particles`` takes out (j . u) u). From the first-order depth of
+    the parent below the surface (Eq. 17); continuous in phi and its gradient, with no
+    threshold, so float round-off in the field (another thread count adds its sums in
+    another order) changes a child's place by round-off. Deep inside (phi flat at 1) 0."""
+    slope = wp.max(wp.length(grad), 1.0e-3 * inv_dx)
+    depth = (phi - 0.5) / slope
+    share = wp.clamp((depth - JITTER_FROM * h) / (JITTER_RAMP * h), 0.0, 1.0)
+    return wp.sqrt(1.0 - share) * (grad / slope)
+
+
 @wp.kernel
 def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays, materials: wp.array(dtype=MaterialParams),
-                  f: SurfaceField, g: GridSpec, b: int, points: wp.uint64, shift: wp.array(dtype=wp.vec3)):
+                  f: SurfaceField, g: GridSpec, b: int, points: wp.uint64, shift: wp.array(dtype=wp.vec3),
+                  flatten: wp.array(dtype=wp.vec3)):
     """Rigid displacement of the family of each parent about to split (Eqs. 17-20,
     see the module docstring): an outermost family's outermost child goes half a fine
     layer inside the parent-level surface. Zero for interior parents, for lower layers (a
     family with another particle on top of it that sits too deep) and far from any
-    surface. Computed before the split, which overwrites the parents."""
+    surface. Beside it how the children's jitter is flattened along the surface
+    (``flat_jitter``). Computed before the split, which overwrites the parents."""
     p = wp.tid() + first
     shift[p] = wp.vec3(0.0)
+    flatten[p] = wp.vec3(0.0)
     if flag[p] == 0:
         return
     xp = s.x[p]
     J = volume_ratio(materials[s.material[p]], s.F[p], s.history[p])
     h = wp.pow(s.volume[p] * wp.abs(J), 1.0 / 3.0)  # current lattice spacing of the parent
-    if not is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J)):
-        return
     phi, grad = occupied_fraction(f, g, xp)
     slope = wp.length(grad)
+    if carries_F(materials[s.material[p]]):
+        flatten[p] = flat_jitter(phi, grad, h, g.inv_dx)
+    if not is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J)):
+        return
     # a surface takes phi from 1 to 0 over a few cells; a much flatter phi is noise
     if slope < 0.05 * g.inv_dx:
         return
@@ -314,12 +345,27 @@ def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays,
     shift[p] = wp.clamp(gap, -h, h) * N  # Eq. 20; a family never moves by more than a spacing
 
 
+# The mean below is continuous in the particles' positions and moves, so that float
+# round-off (another thread count adds its sums in another order) changes it by round-off:
+# a neighbour's weight tapers to 0 over the last TAPER of the radius (parents on their
+# lattice points lie at the radius exactly), and a family counts as moving in proportion to
+# its move up to MOVING x the radius (a surface family of a lattice sits where the
+# reconstruction would put it, its move ~0, and round-off decides whether it moves at all)
+TAPER = wp.constant(0.25)
+MOVING = wp.constant(1.0e-3)
+
+
+@wp.func
+def moving_share(s: wp.vec3, radius: float):
+    return wp.min(wp.length(s) / (MOVING * radius), 1.0)
+
+
 @wp.kernel
 def keep_volume(first: int, flag: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3), points: wp.uint64, radius: float,
                 shift: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
     """Take out of each family's move the mean move of the moving families within
-    ``radius`` (along its own direction): what remains is the jitter the move
-    removes, and the surface keeps its place on average. The smoothed surface of a
+    ``radius`` (along its own direction; weights above): what remains is the jitter the
+    move removes, and the surface keeps its place on average. The smoothed surface of a
     small or curved body lies inside the true one (by ~ kernel width^2 / radius);
     without this a sphere of 3 cells' radius lost 3% of its volume."""
     p = wp.tid() + first
@@ -334,7 +380,9 @@ def keep_volume(first: int, flag: wp.array(dtype=wp.int32), x: wp.array(dtype=wp
     q = int(0)
     while wp.hash_grid_query_next(query, q):
         sq = shift[q]
-        if flag[q] != 0 and wp.length(sq) > 0.0 and wp.length(x[q] - x[p]) < radius:
-            total += wp.dot(sq, N)
-            count += 1.0
-    out[p] = sp - (total / count) * N
+        r = wp.length(x[q] - x[p]) / radius
+        if flag[q] != 0 and r < 1.0:
+            wgt = wp.min((1.0 - r) / TAPER, 1.0) * moving_share(sq, radius)
+            total += wgt * wp.dot(sq, N)
+            count += wgt
+    out[p] = sp - moving_share(sp, radius) * (total / count) * N

@@ -27,7 +27,7 @@ from .reconstruct import (
     scatter_surface_mass,
     smooth_surface_volume,
 )
-from .split import split_particles
+from .split import jitter_seed, split_particles
 from .state import ParticleState
 from .stencil import stencil_base
 from .time_levels import cell_of
@@ -158,11 +158,13 @@ class Refiner:
     """Owns the refined region and keeps the particles and the fine grid in step with it."""
 
     def __init__(self, fine: Grid, coarse: Grid, factor: int, device, reconstruct: bool = False,
-                 surface_threshold: float = DEFAULT_SURFACE_THRESHOLD, launcher: Launcher | None = None):
+                 surface_threshold: float = DEFAULT_SURFACE_THRESHOLD, launcher: Launcher | None = None,
+                 seed: int = 0):
         self.launcher = launcher or Launcher(device, 1)
         self.fine = fine
         self.coarse = coarse
         self.b = factor
+        self.jitter_seed = jitter_seed(seed)
         self.device = device
         cells = tuple(d - 1 for d in coarse.dims)
         self.region_cells = np.zeros(cells, dtype=bool)
@@ -184,6 +186,7 @@ class Refiner:
         self.read_box = (wp.vec3i(0, 0, 0), wp.vec3i(0, 0, 0))  # set_region: the nodes smooth_surface_volume visits
         self._points = wp.HashGrid(64, 64, 64, device=device) if reconstruct else None  # neighbours: who is on top
         self._shift = wp.zeros(1, dtype=wp.vec3, device=device)
+        self._flatten = wp.zeros(1, dtype=wp.vec3, device=device)  # the children's jitter along the surface (sim/split.py)
         self.reconstruct_seconds = 0.0  # CPU time spent reconstructing (for the benchmark)
         self.wanted = wp.zeros(fine.spec.blocks.shape, dtype=wp.int32, device=device)
         self.counter = wp.zeros(1, dtype=wp.int32, device=device)
@@ -281,9 +284,10 @@ class Refiner:
             if self._shift.shape[0] < n:
                 self._shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
                 self._raw_shift = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
+                self._flatten = wp.zeros(2 * n, dtype=wp.vec3, device=self.device)
             self.launcher.launch(family_shifts, n - skip, [self._flag, state.arrays(), materials, self.surface,
                                                            self.coarse.spec, self.b, self._points.id,
-                                                           self._raw_shift],
+                                                           self._raw_shift, self._flatten],
                                  start=skip)
             self.launcher.launch(keep_volume, n - skip, [self._flag, state.x, self._points.id, 3.0 * self.coarse.dx,
                                                          self._raw_shift, self._shift], start=skip)
@@ -292,7 +296,7 @@ class Refiner:
         state.reserve(n + n_split * (ns - 1))
         self.launcher.launch(split_particles, n - skip, [self._flag, self._offset, n, self.b, next_id, state.arrays(),
                                                          materials, colliders, self.fine.spec, self.surface.enabled,
-                                                         self._shift], start=skip)
+                                                         self._shift, self._flatten, self.jitter_seed], start=skip)
         state.count = n + n_split * (ns - 1)
         self.splits += n_split
         return n_split

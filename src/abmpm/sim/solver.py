@@ -80,7 +80,7 @@ class MPMSolver:
                                sparse=True, wall_images=config.wall_images, family=config.refine_factor)
             self.grids.append(fine)
             self.refiner = Refiner(fine, self.grids[0], config.refine_factor, device,
-                                   config.reconstruct, config.surface_threshold, self.launcher)
+                                   config.reconstruct, config.surface_threshold, self.launcher, config.seed)
         self.colliders = colliders
         # compile-time CPIC variant of the transfers: only with colliders in CPIC mode
         self.cpic = colliders is not None and bool(colliders.arrays.cpic)

@@ -28,16 +28,40 @@ wp.set_module_options({"enable_backward": False})
 WALL_GAP = wp.constant(0.25)
 
 
+# child spacings: away from the surface each child is jittered by up to +-CHILD_JITTER / 2
+# per axis about its lattice point, as geometry/sampling.py jitters the points of a fine
+# lattice (its JITTER), so that split material has the texture of material sampled fine
+# (docs/method.md, "Split children sampled as finest samples")
+CHILD_JITTER = wp.constant(0.5)
+
+
+def jitter_seed(seed: int) -> int:
+    """The children's jitter stream of a scene's seed (a 31-bit mix: nearby seeds, other draws)."""
+    return (int(seed) * 2654435761 + 7919) % (2**31 - 1)
+
+
+@wp.func
+def child_jitter(seed: int, key: int):
+    """A child's offset from its lattice point, in child spacings: uniform in
+    +-CHILD_JITTER / 2 per axis, from the scene's ``seed`` (``jitter_seed``) and ``key``
+    (its parent's id and its place in the family: the same on every thread and device, and
+    again after a merge and a new split)."""
+    rng = wp.rand_init(seed, key)
+    u = wp.vec3(wp.randf(rng), wp.randf(rng), wp.randf(rng))
+    return CHILD_JITTER * (u - wp.vec3(0.5))
+
+
 @wp.func
 def wall_shift(g: GridSpec, centre: wp.vec3, Fp: wp.mat33, h: float, b: int):
     """How far a family centred at ``centre`` moves so that its children lie inside the
     domain walls. The coarse grid lets a particle sink a few tenths of its own cell
     into a wall, the fine grid only that part of a fine cell: children placed on such a
     parent's lattice start squeezed into the wall (J ~ 0.6 in a dam break at b = 3,
-    where finest never goes below 0.71). Per axis the outermost child lies
+    where finest never goes below 0.71). Per axis the outermost child's lattice point lies
     (1/2 - 1/2b) h sum_j |F_kj| from the centre; it moves to WALL_GAP child spacings,
-    WALL_GAP h / b sum_j |F_kj|, inside the wall. Positions only: mass and momentum
-    stay those of Eq. 15."""
+    WALL_GAP h / b sum_j |F_kj|, inside the wall (a child its jitter would take closer
+    stops there, ``keep_off_walls``). Positions only: mass and momentum stay those of
+    Eq. 15."""
     out = wp.vec3(0.0)
     for k in range(3):
         row = wp.abs(Fp[k, 0]) + wp.abs(Fp[k, 1]) + wp.abs(Fp[k, 2])
@@ -52,12 +76,26 @@ def wall_shift(g: GridSpec, centre: wp.vec3, Fp: wp.mat33, h: float, b: int):
     return out
 
 
+@wp.func
+def keep_off_walls(g: GridSpec, x: wp.vec3, Fp: wp.mat33, h: float, b: int):
+    """A child's position no nearer a domain wall than its family's outermost lattice point
+    may come (``wall_shift``'s gap): its jitter does not take it into the wall layer."""
+    out = x
+    for k in range(3):
+        gap = WALL_GAP * h / float(b) * (wp.abs(Fp[k, 0]) + wp.abs(Fp[k, 1]) + wp.abs(Fp[k, 2]))
+        lo = g.domain_lo[k] + gap
+        hi = g.domain_hi[k] - gap
+        if hi > lo:
+            out[k] = wp.clamp(x[k], lo, hi)
+    return out
+
+
 @wp.kernel
 def split_particles(
     first_parent: int,  # this launch's first particle (sim/parallel.py)
     flag: wp.array(dtype=wp.int32), offset: wp.array(dtype=wp.int32), n_old: int, b: int, next_id: int,
     s: ParticleArrays, materials: wp.array(dtype=MaterialParams), colliders: ColliderArrays, g1: GridSpec,
-    reconstruct: int, shift: wp.array(dtype=wp.vec3),
+    reconstruct: int, shift: wp.array(dtype=wp.vec3), flatten: wp.array(dtype=wp.vec3), seed: int,
 ):
     p = wp.tid() + first_parent
     if flag[p] == 0:
@@ -87,6 +125,19 @@ def split_particles(
     surface_body = s.surface_body[p]
     surface_side = s.surface_side[p]
     first = n_old + offset[p] * (ns - 1)
+    # the children's jitter, less its family mean: the family's centre stays the lattice's,
+    # so a merge gives the parent back where it was. Its part along the normal of the
+    # reconstruction's smoothed surface falls continuously to 0 towards that surface
+    # (sim/reconstruct.py, ``flat_jitter``): the envelope the reconstruction places stays
+    # smooth, the texture along it is finest's, and round-off in the field moves a child by
+    # round-off only
+    u = wp.vec3(0.0)
+    if reconstruct != 0:
+        u = flatten[p]
+    mean_jitter = wp.vec3(0.0)
+    for c in range(ns):
+        mean_jitter += child_jitter(seed, parent * ns + c)
+    mean_jitter = mean_jitter / float(ns)
     for c in range(ns):
         q = p
         if c > 0:
@@ -94,7 +145,10 @@ def split_particles(
         d = (wp.vec3(float(c // (b * b)), float((c // b) % b), float(c % b)) + wp.vec3(0.5)) / float(b) - wp.vec3(0.5)
         xc = xp + Fp * (h * d)
         s.v[q] = vp + Cp * (xc - xp)  # the APIC affine field at the child (Eq. 15 holds exactly)
-        xc = xc + family_shift
+        # placed off its lattice point by its jitter, with the point's velocity: mass and
+        # momentum stay the split's
+        off = Fp * ((h / float(b)) * (child_jitter(seed, parent * ns + c) - mean_jitter))
+        xc = keep_off_walls(g1, xc + family_shift + off - wp.dot(off, u) * u, Fp, h, b)
         if colliders.cpic != 0 and surface_body >= 0:
             # A child is never placed across a collider from its parent: near a sheet
             # it stops on the parent's side (its velocity stays that of the lattice
