@@ -32,13 +32,24 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
 KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.collider_set",
                   "abmpm.sim.face_cells", "abmpm.sim.reconstruct",
-                  "abmpm.sim.refine", "abmpm.sim.sorting", "abmpm.sim.stiffness", "abmpm.sim.time_levels"]
+                  "abmpm.sim.refine", "abmpm.sim.sorting", "abmpm.sim.split", "abmpm.sim.stiffness",
+                  "abmpm.sim.time_levels"]
 # Turing (T4, RTX 20xx), the oldest Warp targets, and Hopper (H100, H200), the newest
 # the code has run on (docs/benchmarks.md); the transfers' compile-time variants are
 # modules of their own, compiled one by one below. Ampere (sm_86) was compiled here
 # too until 2026-11-27: the same source between the two, a third of this test's time
 # (~50 s of a cold suite on 2 cores), dropped to make room for the b = 3 leak cases.
 ARCHS = [75, 90]
+
+
+def test_every_kernel_module_is_compiled_for_cuda():
+    """A module of sim/ that defines a kernel is on the list below (the split kernel moved to a
+    module of its own on 2026-11-29 and was, for one commit, compiled for the CPU only)."""
+    from pathlib import Path
+
+    sim = Path(__file__).resolve().parents[1] / "src" / "abmpm" / "sim"
+    defined = {f"abmpm.sim.{p.stem}" for p in sim.glob("*.py") if "@wp.kernel" in p.read_text()}
+    assert defined <= set(KERNEL_MODULES), sorted(defined - set(KERNEL_MODULES))
 
 
 def test_kernels_compile_for_cuda_without_a_gpu():
