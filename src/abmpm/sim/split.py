@@ -5,9 +5,12 @@ children on the F-deformed sub-lattice of its own cube (docs/method.md, "Split")
     v_c = v_p + C_p (x_c - x_p),   C, F and the history state copied.
 
 Since sum_k d_k = 0, mass and linear momentum are conserved exactly (up to float32
-rounding of the products). Children remember their parent's id (``family``). The
-family moves as a whole where surface reconstruction (sim/reconstruct.py) or a domain
-wall asks it to; ``Refiner.split`` (sim/refine.py) decides who splits and launches this.
+rounding of the products). Children remember their parent's id (``family``). Each child
+is then placed off its lattice point by its own jitter, the family's mean taken out, with
+the lattice point's velocity (``child_jitter``): the texture of finest mode's sampling,
+mass and momentum still Eq. 15's. The family moves as a whole where surface
+reconstruction (sim/reconstruct.py) or a domain wall asks it to; ``Refiner.split``
+(sim/refine.py) decides who splits and launches this.
 """
 
 from __future__ import annotations
@@ -28,10 +31,11 @@ wp.set_module_options({"enable_backward": False})
 WALL_GAP = wp.constant(0.25)
 
 
-# child spacings: away from the surface each child is jittered by up to +-CHILD_JITTER / 2
-# per axis about its lattice point, as geometry/sampling.py jitters the points of a fine
-# lattice (its JITTER), so that split material has the texture of material sampled fine
-# (docs/method.md, "Split children sampled as finest samples")
+# child spacings: each child is jittered by up to +-CHILD_JITTER / 2 per axis about its
+# lattice point, as geometry/sampling.py jitters the points of a fine lattice (its JITTER),
+# so that split material has the texture of material sampled fine (a solid's less along the
+# surface's normal near its surface: sim/reconstruct.py, ``flat_jitter``; docs/method.md,
+# "Split children sampled as finest samples")
 CHILD_JITTER = wp.constant(0.5)
 
 
