@@ -272,17 +272,18 @@ JITTER_RAMP = wp.constant(0.5)
 
 
 @wp.func
-def flat_jitter(phi: float, grad: wp.vec3, h: float, inv_dx: float):
+def flat_jitter(phi: float, grad: wp.vec3, slope: float, h: float, inv_dx: float):
     """The direction u along which a family's children lose part of their jitter: the
     smoothed surface's normal, scaled so that |u|^2 is the share of the jitter's normal
     part taken out (``split_particles`` takes out (j . u) u). From the first-order depth of
     the parent below the surface (Eq. 17); continuous in phi and its gradient, with no
     threshold, so float round-off in the field (another thread count adds its sums in
-    another order) changes a child's place by round-off. Deep inside (phi flat at 1) 0."""
-    slope = wp.max(wp.length(grad), 1.0e-3 * inv_dx)
-    depth = (phi - 0.5) / slope
+    another order) changes a child's place by round-off. Deep inside (phi flat at 1) 0.
+    ``slope``: |grad phi|."""
+    floor = wp.max(slope, 1.0e-3 * inv_dx)
+    depth = (phi - 0.5) / floor
     share = wp.clamp((depth - JITTER_FROM * h) / (JITTER_RAMP * h), 0.0, 1.0)
-    return wp.sqrt(1.0 - share) * (grad / slope)
+    return wp.sqrt(1.0 - share) * (grad / floor)
 
 
 @wp.kernel
@@ -303,11 +304,15 @@ def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays,
     xp = s.x[p]
     J = volume_ratio(materials[s.material[p]], s.F[p], s.history[p])
     h = wp.pow(s.volume[p] * wp.abs(J), 1.0 / 3.0)  # current lattice spacing of the parent
+    solid = carries_F(materials[s.material[p]])
+    surface = is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J))
+    if not solid and not surface:
+        return  # an interior fluid parent: nothing to move, its children's jitter whole
     phi, grad = occupied_fraction(f, g, xp)
     slope = wp.length(grad)
-    if carries_F(materials[s.material[p]]):
-        flatten[p] = flat_jitter(phi, grad, h, g.inv_dx)
-    if not is_surface_parent(f, g, xp, s.mass[p] / (s.volume[p] * J)):
+    if solid:
+        flatten[p] = flat_jitter(phi, grad, slope, h, g.inv_dx)
+    if not surface:
         return
     # a surface takes phi from 1 to 0 over a few cells; a much flatter phi is noise
     if slope < 0.05 * g.inv_dx:
@@ -315,7 +320,7 @@ def family_shifts(first: int, flag: wp.array(dtype=wp.int32), s: ParticleArrays,
     N = grad / slope  # N_s, inwards (Eq. 19)
     depth = (phi - 0.5) / slope  # d_s > 0 inside (Eq. 17, first order)
     # (within the surface layer: a deeper parent only needs to know that it is deep)
-    if carries_F(materials[s.material[p]]) and wp.abs(depth) < g.dx:
+    if solid and wp.abs(depth) < g.dx:
         for _ in range(LEVEL_SET_STEPS):
             phi_s, grad_s = occupied_fraction(f, g, xp - depth * N)  # at the estimated surface point
             slope_s = wp.dot(grad_s, N)
