@@ -45,19 +45,28 @@ def jitter_of_keys(seed: int, keys: wp.array(dtype=int), out: wp.array(dtype=wp.
     out[i] = child_jitter(seed, keys[i])
 
 
+def child_places(out, b):
+    """Each split child's place c in its family (ids are given in family order) and its
+    lattice point's offset d_c from the family's centre, in parent spacings (Eq. 15).
+    ``out`` holds only children."""
+    place = (out["id"] - out["id"].min()) % b**3
+    d = (np.stack([place // (b * b), (place // b) % b, place % b], -1) + 0.5) / b - 0.5
+    return place, d
+
+
 def child_offsets(out, b):
     """Each split child's jitter less its family's mean, in child spacings and in the
     parent's undeformed frame (sim/split.py): what the split added to the child's
     lattice point. ``out`` holds only children, of parents split with full jitter."""
     ns = b**3
-    place = (out["id"] - out["id"].min()) % ns  # the child's place c in its family
+    place, _ = child_places(out, b)
     keys = wp.array((out["family"] * ns + place).astype(np.int32), dtype=int, device="cpu")
     jit = wp.zeros(len(keys), dtype=wp.vec3, device="cpu")
     wp.launch(jitter_of_keys, len(keys), [jitter_seed(0), keys, jit], device="cpu")  # split_everything's seed
     jit = jit.numpy().astype(np.float64)
     for f in np.unique(out["family"]):
         jit[out["family"] == f] -= jit[out["family"] == f].mean(axis=0)
-    return jit, place
+    return jit
 
 
 def random_particles(n, seed):
@@ -124,8 +133,8 @@ def test_split_children_start_inside_the_domain_walls(b):
     # each family keeps its lattice: the centre moved, each child within its jitter (at most
     # CHILD_JITTER child spacings from its lattice point, the family's mean taken out; a child
     # the wall's gap stopped only nearer its point) of the lattice point d_c
-    jit, place = child_offsets(out, b)
-    d = (np.stack([place // (b * b), (place // b) % b, place % b], -1) + 0.5) / b - 0.5
+    jit = child_offsets(out, b)
+    _, d = child_places(out, b)
     for k in range(4):
         fam = out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]
         assert fam.sum() == b**3
@@ -157,7 +166,7 @@ def test_a_compressed_fluid_parent_splits_into_the_volume_it_fills(b):
         kids = out["family"] == out["family"][np.argmin(np.linalg.norm(out["x"] - x[k], axis=1))]
         assert kids.sum() == b**3 and np.allclose(out["history"][kids], J[k])
         side = h * J[k] ** (1 / 3)  # the cube the parent fills now; less the children's jitter
-        points = out["x"][kids] - side / b * child_offsets(out, b)[0][kids]
+        points = out["x"][kids] - side / b * child_offsets(out, b)[kids]
         span = points.max(axis=0) - points.min(axis=0)  # (b - 1) child spacings
         assert np.allclose(span, (b - 1) / b * side, rtol=1e-5)
         assert np.allclose(out["x"][kids].mean(axis=0), x[k], atol=1e-6)

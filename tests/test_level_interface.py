@@ -32,7 +32,7 @@ def test_adaptive_parents_sit_on_their_lattice_and_their_children_have_finest_ji
     # finest samples"). Parents that may split are now sampled on their lattice points and
     # each child is jittered about its own, as finest mode samples every particle: up to
     # JITTER/2 child spacings per axis, less the family's mean.
-    from test_adaptive import split_everything
+    from test_adaptive import child_places, split_everything
 
     for b in (2, 4):
         scene = tank_at_rest("adaptive", b=b)
@@ -54,8 +54,7 @@ def test_adaptive_parents_sit_on_their_lattice_and_their_children_have_finest_ji
     out = split_everything(grid.astype(np.float32), np.zeros((n, 3), np.float32), zeros3, F,
                            np.full(n, 1000.0 * h**3, np.float32), b)
     parent = grid[np.argmin(np.linalg.norm(out["x"][:, None] - grid[None], axis=2), axis=1)]
-    place = (out["id"] - out["id"].min()) % b**3
-    d = (np.stack([place // (b * b), (place // b) % b, place % b], -1) + 0.5) / b - 0.5
+    place, d = child_places(out, b)
     off = (out["x"] - parent - h * d) / (h / b)
     assert np.abs(off).max() <= JITTER + 1e-3  # at most a draw's range from its point
     want = JITTER / np.sqrt(12) * np.sqrt(1 - 1 / b**3)
