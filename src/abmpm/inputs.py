@@ -18,7 +18,7 @@ from .geometry.meshes import limit_edge_length
 from .geometry.motion import KinematicMotion
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
-from .geometry.sampling import JITTER, particle_volume, sample_body
+from .geometry.sampling import JITTER, sample_body_volume
 from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
@@ -109,11 +109,10 @@ def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(st.seed)
     parts = []
     for i, body in enumerate(scene.bodies):
-        x = sample_body(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]",
-                        jitter=JITTER if split_factor == 1 else 0.0)
+        x, vol = sample_body_volume(body, st, rng, resolve=scene.resolve, where=f"bodies[{i}]",
+                                    jitter=JITTER if split_factor == 1 else 0.0)
         n = len(x)
         mat = scene.materials[scene.material_index(body.material)]
-        vol = particle_volume(st.dx, body.particles_per_cell)
         w = np.asarray(getattr(body, "angular_velocity", (0.0, 0.0, 0.0)), dtype=np.float64)
         centre = x.astype(np.float64).mean(axis=0)
         v = np.asarray(body.velocity, dtype=np.float64) + np.cross(w, x - centre)

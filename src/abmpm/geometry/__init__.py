@@ -28,6 +28,7 @@ from abmpm.geometry.sampling import (
     lattice_spacing,
     particle_volume,
     sample_body,
+    sample_body_volume,
     shape_bounds_and_inside,
 )
 from abmpm.geometry.shapes import (
@@ -58,6 +59,7 @@ __all__ = [
     "place",
     "require_closed",
     "sample_body",
+    "sample_body_volume",
     "shape_bounds_and_inside",
     "transform_mesh",
 ]

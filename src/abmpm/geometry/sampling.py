@@ -8,9 +8,14 @@ put a regular sub-lattice of the simulation grid in it, keep the lattice points 
   anchored at ``domain_min`` (points at ``domain_min + (i + 0.5) h``). Every body uses
   the same lattice, so two bodies that touch share no lattice point and never overlap,
   and a box aligned to grid cells gets exactly ``ppc`` particles per cell.
-* Each particle stands for a cube of volume ``h**3`` (:func:`particle_volume`). The
-  inside test runs on the unjittered lattice points, so the particle count, and with it
-  the body's mass, does not depend on the random seed.
+* Each particle stands for a cube of volume ``h**3`` (:func:`particle_volume`), except
+  where the lattice does not fill the shape whole: a box whose sides are no multiple of
+  ``h``, a sphere, an ellipsoid, a closed mesh. There the particles share the shape's
+  exact volume (:func:`sample_body_volume`), so that the body's mass is ``density x
+  volume`` at every ``h``, and a run on the coarse lattice and one on the fine lattice
+  (original, adaptive and finest mode) hold the same mass. The inside test runs on the
+  unjittered lattice points, so the particle count, and with it the body's mass, does
+  not depend on the random seed.
 * The jitter (at most a quarter of ``h`` per axis by default) breaks the lattice's
   symmetry, which otherwise shows up as grid-aligned artefacts in MPM, while keeping
   particles apart and inside the domain.
@@ -21,6 +26,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -36,6 +42,22 @@ from abmpm.geometry.shapes import (
 from abmpm.geometry.transforms import euler_matrix
 
 InsideTest = Callable[[np.ndarray], np.ndarray]
+
+
+class Shape(NamedTuple):
+    """A body's shape as the sampler reads it: its exact bounding box, an inside test of
+    float64 points (N, 3) and its exact volume (None where there is no closed form: the
+    bunny's overlapping ellipsoids)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    inside: InsideTest
+    volume: float | None
+
+
+# A body's particles keep h**3 each where that sums to the shape's volume within this
+# relative tolerance (a box of whole lattice cubes: bit-identical to h**3 then)
+EXACT_VOLUME_RTOL = 1e-9
 
 
 # --------------------------------------------------------------------------- lattice
@@ -105,7 +127,7 @@ def _box(body, resolve, where):
     lo = np.asarray(body.min, dtype=np.float64)
     hi = np.asarray(body.max, dtype=np.float64)
     # Every lattice point of the bounding box is inside the box itself.
-    return lo, hi, lambda p: np.ones(len(p), dtype=bool)
+    return Shape(lo, hi, lambda p: np.ones(len(p), dtype=bool), float(np.prod(hi - lo)))
 
 
 def _sphere(body, resolve, where):
@@ -116,7 +138,7 @@ def _sphere(body, resolve, where):
         d = p - c
         return np.einsum("ij,ij->i", d, d) <= r * r
 
-    return c - r, c + r, inside
+    return Shape(c - r, c + r, inside, 4.0 / 3.0 * np.pi * r**3)
 
 
 def _ellipsoid(body, resolve, where):
@@ -125,13 +147,13 @@ def _ellipsoid(body, resolve, where):
     R = euler_matrix(body.rotation)
     ell = [(c, r, R)]
     half = ellipsoid_half_extent(r, R)
-    return c - half, c + half, lambda p: inside_ellipsoids(p, ell)
+    return Shape(c - half, c + half, lambda p: inside_ellipsoids(p, ell), 4.0 / 3.0 * np.pi * float(np.prod(r)))
 
 
 def _bunny(body, resolve, where):
     ells = bunny_ellipsoids(body.center, body.size, body.rotation)
     lo, hi = ellipsoids_bounds(ells)
-    return lo, hi, lambda p: inside_ellipsoids(p, ells)
+    return Shape(lo, hi, lambda p: inside_ellipsoids(p, ells), None)
 
 
 def _mesh(body, resolve, where):
@@ -148,7 +170,8 @@ def _mesh(body, resolve, where):
             f"{MAX_COORDINATE:.0e} m; check scale and translation"
         )
     lo, hi = mesh.bounds
-    return np.asarray(lo, np.float64), np.asarray(hi, np.float64), lambda p: inside_mesh(p, mesh)
+    return Shape(np.asarray(lo, np.float64), np.asarray(hi, np.float64), lambda p: inside_mesh(p, mesh),
+                 abs(float(mesh.volume)))
 
 
 _SHAPES = {"box": _box, "sphere": _sphere, "ellipsoid": _ellipsoid, "mesh": _mesh, "bunny": _bunny}
@@ -244,17 +267,56 @@ def _check_in_domain(lo, hi, settings, where: str) -> None:
         )
 
 
-def shape_bounds_and_inside(body, resolve: Callable = lambda p: p, where: str = "bodies[0]"):
-    """``(lo, hi, inside)`` of a body: its exact bounding box and an inside test.
-
-    ``inside`` maps float64 points (N, 3) to a boolean mask. Mesh bodies load (and
-    check) their file here, so MeshError is raised before any sampling work.
-    """
+def body_shape(body, resolve: Callable = lambda p: p, where: str = "bodies[0]") -> Shape:
+    """A body's :class:`Shape`. Mesh bodies load (and check) their file here, so
+    MeshError is raised before any sampling work."""
     try:
         make = _SHAPES[body.shape]
     except (AttributeError, KeyError):
         raise SceneError(f"{where}: unknown body shape {getattr(body, 'shape', None)!r}") from None
     return make(body, resolve, where)
+
+
+def shape_bounds_and_inside(body, resolve: Callable = lambda p: p, where: str = "bodies[0]"):
+    """``(lo, hi, inside)`` of a body: its exact bounding box and an inside test
+    (``inside`` maps float64 points (N, 3) to a boolean mask)."""
+    return body_shape(body, resolve, where)[:3]
+
+
+def sample_body_volume(
+    body,
+    settings,
+    rng: np.random.Generator,
+    resolve: Callable = lambda p: p,
+    where: str = "bodies[0]",
+    jitter: float = JITTER,
+) -> tuple[np.ndarray, float]:
+    """Particle positions (N, 3, float32) filling ``body``, and the volume each stands for.
+
+    ``settings`` supplies ``dx``, ``domain_min`` and ``domain_max``; ``resolve`` maps a
+    mesh file path from the scene to a real path (``Scene.resolve``); ``where`` names
+    the body in error messages. The same ``rng`` state gives identical output; ``jitter``
+    scales the jitter (``jitter_points``) and not the random stream, so the count and the
+    draws do not depend on it. The volume is ``particle_volume(dx, ppc)`` where the
+    lattice fills the shape whole, else the shape's exact volume over the particle count
+    (a box 0.25 m deep on a lattice of 0.02 m holds 13 layers, 0.26 m of cubes: 4% too
+    much mass at that spacing, 1.3% at a third of it, so that adaptive and finest mode
+    would start with different masses); the bunny keeps ``h**3`` (no closed form).
+    """
+    shape = body_shape(body, resolve, where)
+    _check_in_domain(shape.lo, shape.hi, settings, where)
+    ppc = body.particles_per_cell
+    # Clip to the domain so that rounding at a wall can never yield a point outside it.
+    lo = np.maximum(shape.lo, settings.domain_min)
+    hi = np.minimum(shape.hi, settings.domain_max)
+    base = lattice_points(lo, hi, settings.dx, ppc, settings.domain_min)
+    kept = base[shape.inside(base)] if len(base) else base
+    if len(kept) == 0:
+        raise SceneError(f"{where}: body is smaller than the particle spacing; no particles sampled")
+    volume = particle_volume(settings.dx, ppc)
+    if shape.volume is not None and abs(shape.volume / (len(kept) * volume) - 1.0) > EXACT_VOLUME_RTOL:
+        volume = shape.volume / len(kept)
+    return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng, jitter).astype(np.float32), volume
 
 
 def sample_body(
@@ -265,23 +327,5 @@ def sample_body(
     where: str = "bodies[0]",
     jitter: float = JITTER,
 ) -> np.ndarray:
-    """Particle positions (N, 3, float32) filling ``body``.
-
-    ``settings`` supplies ``dx``, ``domain_min`` and ``domain_max``; ``resolve`` maps a
-    mesh file path from the scene to a real path (``Scene.resolve``); ``where`` names
-    the body in error messages. Each particle stands for ``particle_volume(dx, ppc)``.
-    The same ``rng`` state gives identical output; ``jitter`` scales the jitter
-    (``jitter_points``) and not the random stream, so the count and the draws do not
-    depend on it.
-    """
-    lo, hi, inside = shape_bounds_and_inside(body, resolve, where)
-    _check_in_domain(lo, hi, settings, where)
-    ppc = body.particles_per_cell
-    # Clip to the domain so that rounding at a wall can never yield a point outside it.
-    lo = np.maximum(lo, settings.domain_min)
-    hi = np.minimum(hi, settings.domain_max)
-    base = lattice_points(lo, hi, settings.dx, ppc, settings.domain_min)
-    kept = base[inside(base)] if len(base) else base
-    if len(kept) == 0:
-        raise SceneError(f"{where}: body is smaller than the particle spacing; no particles sampled")
-    return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng, jitter).astype(np.float32)
+    """The positions of :func:`sample_body_volume`."""
+    return sample_body_volume(body, settings, rng, resolve, where, jitter)[0]
