@@ -302,6 +302,8 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "huge_density": (sub("density = 1000.0", "density = 1e308"), ("materials[0].density", "single-precision")),
     "denormal_dx": (sub("dx = 0.05", "dx = 1e-300"), ("simulation.dx", "single-precision")),
     "huge_fps": (sub("fps = 30.0", "fps = 1e30"), ("simulation.fps", "frames")),
+    "million_frames": (sub("fps = 30.0", "fps = 1e8"), ("simulation.fps", "frames", "1e+06")),
+    "huge_bandwidth": (sub("bandwidth = 1.0", "bandwidth = 1e6"), ("simulation.refinement.bandwidth", "16")),
     "huge_duration": (sub("duration = 0.0333", "duration = 1e30"), ("simulation.duration", "frames")),
     "tiny_max_dt": (sub("max_dt = 0.001", "max_dt = 1e-30"), ("simulation.max_dt", "time steps")),
     "tiny_cfl": (sub("cfl = 0.4", "cfl = 1e-30"), ("simulation.cfl", "time steps")),

@@ -47,7 +47,7 @@ from abmpm.cli_common import stdout_console as _stdout
 from abmpm.cli_post import add_parsers as add_post_parsers
 from abmpm.cli_sweep import add_parsers as add_sweep_parsers
 from abmpm.compare import PAPER_SCENES, compare, remeasure, run_paper
-from abmpm.errors import AbmpmError, SceneError, SimulationBlowUp
+from abmpm.errors import OUT_OF_MEMORY_HINT, AbmpmError, OutOfMemory, SceneError, SimulationBlowUp, allocation_failure
 from abmpm.io.writers.surface import surface_folder
 from abmpm.io.writers.viewer import ViewOptions
 from abmpm.post.viewer import Viewer
@@ -93,8 +93,8 @@ def _cmd_run(args) -> int:
     except KeyboardInterrupt:
         print(f"interrupted; continue with: {_resume_command(args, out)}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except SimulationBlowUp as exc:
-        raise SimulationBlowUp(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
+    except (SimulationBlowUp, OutOfMemory) as exc:
+        raise type(exc)(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
     except SceneError as exc:
         # errors found while building the particles (body outside the domain, ...)
         # name the key; add the scene file when they do not name it already
@@ -394,8 +394,11 @@ def main(argv: list[str] | None = None) -> int:
         for line in lines[1:]:
             print(f"error: {line}", file=sys.stderr)
         return EXIT_ERROR
-    except MemoryError:
-        print("error: out of memory; use a coarser grid (raise simulation.dx) or fewer particles", file=sys.stderr)
+    except (MemoryError, RuntimeError) as exc:
+        if not allocation_failure(exc):
+            raise
+        detail = f" ({exc})" if str(exc) else ""
+        print(f"error: out of memory{detail}; {OUT_OF_MEMORY_HINT}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

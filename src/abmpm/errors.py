@@ -24,3 +24,17 @@ class OutputError(AbmpmError):
 
 class SimulationBlowUp(AbmpmError):
     """The state became non-finite or violated the CFL bound; the run stops."""
+
+
+class OutOfMemory(AbmpmError):
+    """An allocation failed during a run (adaptive mode's split children, a finer grid)."""
+
+
+def allocation_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is a failed allocation: Python's MemoryError or Warp's RuntimeError
+    ("Failed to allocate N bytes on device ...")."""
+    return isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError) and "Failed to allocate" in str(exc))
+
+
+OUT_OF_MEMORY_HINT = ("raise simulation.dx, lower simulation.refinement.factor (adaptive mode splits each particle "
+                      "of the refined region into factor^3) or shrink the refined region or the bodies")

@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 from rich.markup import escape
 
-from abmpm.errors import AbmpmError, OutputError, SceneError, SimulationBlowUp
+from abmpm.errors import (OUT_OF_MEMORY_HINT, AbmpmError, OutOfMemory, OutputError, SceneError, SimulationBlowUp,
+                           allocation_failure)
 from abmpm.geometry import inside_mesh
 from abmpm.geometry.placement import collider_mesh
 from abmpm.io.outdir import SCENE_FILE, SUMMARY_FILE, clean_previous_run, clean_temporaries, prepare_out_dir
@@ -43,7 +44,7 @@ from abmpm.io.summary import write_json
 from abmpm.io.writers import FrameData, RunContext, Writer, build_writers
 from abmpm.io.writers.summary import make_summary
 from abmpm.post.preview import render_folder
-from abmpm.scene.checks import slow_start_note
+from abmpm.scene.checks import MAX_FRAMES, slow_start_note
 from abmpm.scene.loader import load_scene, scene_record
 from abmpm.scene.model import Scene
 from abmpm.simulation import Simulation, can_refine
@@ -57,6 +58,8 @@ def total_frames(scene: Scene, frames: int | None = None) -> int:
     if frames is not None:
         if int(frames) < 1:
             raise AbmpmError(f"frames must be >= 1, got {frames}")
+        if int(frames) > MAX_FRAMES:
+            raise AbmpmError(f"{int(frames):.3g} frames: more than {MAX_FRAMES:.0e}")
         return int(frames)
     st = scene.simulation
     return max(1, math.ceil(st.duration * st.fps - 1e-6))
@@ -81,7 +84,8 @@ def run(
     serves a live browser view of the run. Returns the summary dict (also written to
     ``summary.json``).
     On :class:`SimulationBlowUp` the last good state is checkpointed, the summary is
-    written with status ``"blew_up"`` and the exception is re-raised.
+    written with status ``"blew_up"`` and the exception is re-raised; a failed allocation
+    the same way, with status ``"out_of_memory"``, as :class:`OutOfMemory`.
     """
     t_start = time.perf_counter()
     scene = load_scene(scene) if not isinstance(scene, Scene) else scene
@@ -111,7 +115,10 @@ def run(
                      "nothing left to simulate")
     if resumed_from is None:
         clean_previous_run(out)
-    write_json(out / SCENE_FILE, scene_record(scene))
+    try:
+        write_json(out / SCENE_FILE, scene_record(scene))
+    except OSError as exc:  # a full or read-only disk: before anything was simulated
+        raise OutputError(f"cannot write output in {out}: {exc.strerror or exc}") from None
 
     bar = Progress(progress, console)
     ctx = RunContext(out, scene, sim, total, tuple(w.name for w in writers), bar, resumed_from, t_start)
@@ -154,6 +161,12 @@ def run(
             ctx.status, message, err = "blew_up", str(exc), exc
         except KeyboardInterrupt as exc:
             ctx.status, message, err = "interrupted", "interrupted by the user", exc
+        except (MemoryError, RuntimeError) as exc:
+            if not allocation_failure(exc):
+                raise
+            message = (f"out of memory at step {sim.steps} (t = {sim.time:.4f} s; {exc}); {OUT_OF_MEMORY_HINT}; "
+                       f"last good frame is {sim.history[-1]['frame']}")
+            ctx.status, err = "out_of_memory", OutOfMemory(message)
         sim_seconds = time.perf_counter() - t_sim - io_seconds
         for note in _refined_share(scene, sim):
             notes.append(note)

@@ -12,10 +12,11 @@ import numpy as np
 from abmpm.compare.outcomes import leaks, outcome_for
 from abmpm.compare.paper import PAPER_CONTACT, PAPER_SCENES, QUICK_OVERRIDES
 from abmpm.compare.report import scene_figures, write_report
-from abmpm.errors import AbmpmError, SimulationBlowUp
+from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
 from abmpm.io.outdir import scene_from_folder
 from abmpm.post.preview import disk_frames
 from abmpm.runner import run
+from abmpm.scene.checks import MAX_FRAMES
 from abmpm.scene.loader import load_scene
 from abmpm.scene.model import with_mode
 from abmpm.sweep import scene_source
@@ -133,14 +134,34 @@ def measure(scene, run_dir: Path, summary: dict, window_from: int | None = None)
     return rec
 
 
-def read_table(out: Path) -> list[dict]:
+def read_table(out: Path, strict: bool = False) -> list[dict]:
+    """The records of ``out/table1.json`` ([] where there is none). An unreadable or
+    foreign file reads as none, or with ``strict`` (``--remeasure``, which has nothing else
+    to go on) is an error naming it."""
     path = Path(out) / TABLE_FILE
     if not path.exists():
         return []
     try:
-        return json.loads(path.read_text()).get("records", [])
-    except (OSError, ValueError):
+        records = json.loads(path.read_text()).get("records", [])
+        if not isinstance(records, list) or not all(isinstance(r, dict) and "run_dir" in r for r in records):
+            raise ValueError("its records are not those of abmpm compare")
+        return records
+    except (OSError, ValueError, AttributeError) as exc:
+        if strict:
+            why = "not a JSON object" if isinstance(exc, AttributeError) else exc
+            raise AbmpmError(f"{path}: cannot be read ({why})") from None
         return []
+
+
+def _read_summary(run_dir: Path) -> dict:
+    path = run_dir / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise AbmpmError(f"{path}: cannot be read ({exc})") from None
+    if not isinstance(summary, dict):
+        raise AbmpmError(f"{path}: not a run's summary (a JSON object)")
+    return summary
 
 
 def write_table(out: Path, records: list[dict]) -> Path:
@@ -173,6 +194,9 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
     window_from = None
     if window is not None:
         window_from, frames = window_frames(*window, base.simulation.fps)
+        if frames > MAX_FRAMES:
+            raise AbmpmError(f"--window {window[1]:g} s: {frames:.3g} frames at {base.simulation.fps:g} fps, "
+                             f"more than {MAX_FRAMES:.0e}")
     out = Path(out)
     records = []
     for i, mode in enumerate(modes):
@@ -188,11 +212,8 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
         rec = measure(sc, run_dir, summary, window_from)
         rec["quick"] = bool(quick and base.name in QUICK_OVERRIDES)
         records.append(rec)
-    scene_figures(base, records, out / base.name)
     table = [r for r in read_table(out) if not (r.get("scene") == base.name and r.get("mode") in modes)]
-    table += records
-    write_table(out, table)
-    write_report(out, table)
+    _write_outputs(out, table + records, [(base, records, base.name)])
     return records
 
 
@@ -203,21 +224,29 @@ def remeasure(out) -> list[dict]:
     table there: nothing is written, and the answer is empty."""
     out = Path(out)
     table, scenes = [], {}
-    recorded = read_table(out)
+    recorded = read_table(out, strict=True)
     if not recorded:
         return []
     for old in recorded:
         run_dir = Path(old["run_dir"])
         sc = scene_from_folder(run_dir)
-        rec = measure(sc, run_dir, json.loads((run_dir / "summary.json").read_text()))
+        rec = measure(sc, run_dir, _read_summary(run_dir))
         rec["quick"] = old.get("quick", False)
         table.append(rec)
         scenes.setdefault(rec["scene"], sc)
-    for name, sc in scenes.items():
-        scene_figures(sc, [r for r in table if r["scene"] == name], out / name)
-    write_table(out, table)
-    write_report(out, table)
+    _write_outputs(out, table, [(sc, [r for r in table if r["scene"] == name], name) for name, sc in scenes.items()])
     return table
+
+
+def _write_outputs(out: Path, table: list[dict], figures: list) -> None:
+    # the figures of each (scene, its records, its folder's name), the table and the report
+    try:
+        for sc, records, name in figures:
+            scene_figures(sc, records, out / name)
+        write_table(out, table)
+        write_report(out, table)
+    except OSError as exc:
+        raise OutputError(f"cannot write the comparison in {out}: {exc.strerror or exc}") from None
 
 
 def check_window(window: float) -> None:

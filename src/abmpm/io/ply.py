@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from plyfile import PlyData, PlyElement
+from plyfile import PlyData, PlyElement, PlyParseError
 
 from abmpm.errors import OutputError
 from abmpm.io.atomic import atomic_write
@@ -88,10 +88,14 @@ def read_particles_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
     path = Path(path)
     try:
         ply = PlyData.read(str(path))
-    except (OSError, ValueError) as exc:
-        raise OutputError(f"cannot read PLY file {path}: {exc}") from exc
-    data = ply["vertex"].data
+        data = ply["vertex"].data
+    except (OSError, ValueError, KeyError, PlyParseError) as exc:  # a damaged or foreign file
+        why = "no vertex element" if isinstance(exc, KeyError) else exc
+        raise OutputError(f"cannot read PLY file {path}: {why}") from None
     names = list(data.dtype.names)
+    missing = [c for c in _AXES if c not in names]
+    if missing:
+        raise OutputError(f"cannot read PLY file {path}: its vertices have no {', '.join(missing)}")
     out: dict[str, np.ndarray] = {}
     used: set[str] = set()
     out["x"] = np.stack([np.asarray(data[c]) for c in _AXES], axis=1)

@@ -41,8 +41,9 @@ GRID_EXTRA_NODES = 7
 # The solver indexes nodes and particles with 32-bit integers.
 MAX_INDEX = 2**31 - 1
 # A run longer than this many frames, or a frame needing more time steps than this,
-# is a mistake (an absurd fps or duration, a stiffness or speed off by many orders).
-MAX_FRAMES = 1e9
+# is a mistake (an absurd fps or duration, a stiffness or speed off by many orders): a
+# million frames are nine hours at 30 fps, each frame written and each taking steps.
+MAX_FRAMES = 1e6
 MAX_STEPS_PER_FRAME = 1e8
 # typical scenes take 50-500 steps a frame; this many makes a run slow enough to say so
 SLOW_STEPS_PER_FRAME = 1e4
@@ -87,8 +88,10 @@ def memory_estimate(scene, mode: str | None = None, load_meshes: bool = True) ->
       sampler does build that whole lattice), 152 bytes each. Mesh bodies count as the
       whole domain when ``load_meshes`` is false.
 
-    Adaptive mode is estimated like original mode: particles split near colliders
-    (up to ``factor^3`` children each) and the sparse fine grid grow during the run.
+    Adaptive mode is estimated like original mode, plus the ``factor^3 - 1`` children of
+    each particle of a body's bounding box within a refinement box (those split at the
+    first step); particles that split near colliders and the sparse fine grid grow during
+    the run.
     Returns ``{"grid_nodes", "grid_bytes", "particles", "particle_bytes",
     "body_particles", "total_bytes"}``.
     """
@@ -99,12 +102,17 @@ def memory_estimate(scene, mode: str | None = None, load_meshes: bool = True) ->
         cells = (st.domain_max[a] - st.domain_min[a]) / dx
         nodes *= math.ceil(cells - 1e-9) + GRID_EXTRA_NODES if math.isfinite(cells) else math.inf
     node_bytes = GRID_NODE_BYTES + (COLOR_NODE_BYTES if scene.colliders else 0)
-    domain_vol = _clipped_volume(st.domain_min, st.domain_max, st)
+    ref = st.refinement
+    boxes = ref.boxes if _mode(scene, mode) == "adaptive" else []
     per_body = []
     for i, body in enumerate(scene.bodies):
         bounds = _body_bounds(body, scene, i, load_meshes)
-        vol = domain_vol if bounds is None else _clipped_volume(*bounds, st)
-        per_body.append(vol / dx**3 * body.particles_per_cell)
+        lo, hi = (st.domain_min, st.domain_max) if bounds is None else bounds
+        vol = _clipped_volume(lo, hi, st)
+        # the part in refinement boxes splits at once (overlapping boxes counted once each: an upper estimate)
+        boxed = min(vol, sum(_clipped_volume([max(lo[a], b_lo[a]) for a in range(3)],
+                                             [min(hi[a], b_hi[a]) for a in range(3)], st) for b_lo, b_hi in boxes))
+        per_body.append((vol + boxed * (ref.factor**3 - 1)) / dx**3 * body.particles_per_cell)
     particles = sum(per_body)
     return {
         "grid_nodes": nodes,
@@ -179,9 +187,11 @@ def check_memory(scene, mode: str | None = None, device: str | None = None, memo
     if est["grid_bytes"] >= est["particle_bytes"]:
         hint = "raise dx or shrink the domain" + (" (or lower refinement.factor)" if finest else "")
         raise SceneError(f"simulation.dx: the scene {need}; {hint}")
+    split = " (adaptive mode splits the particles in refinement.boxes into factor^3: lower simulation.refinement." \
+        "factor or shrink the boxes)" if _mode(scene, mode) == "adaptive" and st.refinement.boxes else ""
     raise SceneError(
         f"bodies[{big}]: the scene {need}; raise simulation.dx, lower bodies[{big}].particles_per_cell "
-        "or make the bodies smaller"
+        f"or make the bodies smaller{split}"
     )
 
 

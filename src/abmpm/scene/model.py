@@ -88,7 +88,8 @@ class Refinement(_Strict):
     )
     gap_cells: float = Field(3.0, gt=0, description="feature criterion: gaps narrower than this (coarse cells) are refined")
     threshold: float = Field(1.5, gt=0, description="boundary density above which coarse cells are refined")
-    bandwidth: float = Field(1.0, gt=0, description="Gaussian bandwidth h of the density, in coarse cells")
+    bandwidth: float = Field(1.0, gt=0, le=16, description="Gaussian bandwidth h of the density, in coarse cells "
+                             "(its kernel spans 3 h each way: up to 16)")
     halo: int = Field(1, ge=0, description="refined cells grow by this many coarse cells")
     boxes: Annotated[list[Box], Strict(False)] = Field(
         default_factory=list, description="extra boxes to refine, [min, max]"

@@ -12,7 +12,7 @@ in the order of :data:`abmpm.io.writers.WRITERS`:
     (``data.first``); ``data.output_frame`` says whether it is one of the output
     frames (every ``output.frame_every``-th, the first and the last).
 ``finish(run)``
-    once at the end, with ``run.status`` ``"completed"``, ``"blew_up"`` or
+    once at the end, with ``run.status`` ``"completed"``, ``"blew_up"``, ``"out_of_memory"`` or
     ``"interrupted"`` and ``run.summary`` built; writers add the files they wrote to
     ``run.outputs`` (listed in ``summary.json`` in that order). Not called when a
     frame could not be written (the run stops with that error).
@@ -114,7 +114,7 @@ class RunContext:
     progress: Progress
     resumed_from: int | None = None
     t_start: float = field(default_factory=time.perf_counter)
-    status: str = "running"  # then "completed", "blew_up" or "interrupted"
+    status: str = "running"  # then "completed", "blew_up", "out_of_memory" or "interrupted"
     summary: dict = field(default_factory=dict)
     outputs: dict[str, str] = field(default_factory=dict)  # name -> path in out, for summary.json
     render_seconds: float = 0.0  # writers that render (preview, USD) add their time
