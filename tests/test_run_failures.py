@@ -163,3 +163,16 @@ def test_a_paper_window_beyond_the_frame_limit_is_refused(in_tmp, capsys):
                          "--out", "p", "-q"], capsys)
     one_line_error(code, err, "--window", "frames", f"{checks.MAX_FRAMES:.0e}")
     assert not (in_tmp / "p").exists() or not any((in_tmp / "p").rglob("*.ply"))
+
+
+def test_interrupted_while_setting_up_offers_no_resume(in_tmp, capsys, monkeypatch):
+    # a large collider takes minutes to build; stopped then, there is no checkpoint to resume
+    import abmpm.runner as runner
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "Simulation", interrupted)
+    code, err = run_cli(RUN, capsys)
+    assert code == 130 and "Traceback" not in err
+    assert "--resume" not in err and "before the first checkpoint" in err

@@ -48,6 +48,7 @@ from abmpm.cli_post import add_parsers as add_post_parsers
 from abmpm.cli_sweep import add_parsers as add_sweep_parsers
 from abmpm.compare import PAPER_SCENES, compare, remeasure, run_paper
 from abmpm.errors import OUT_OF_MEMORY_HINT, AbmpmError, OutOfMemory, SceneError, SimulationBlowUp, allocation_failure
+from abmpm.io.outdir import CHECKPOINT_RE, CHECKPOINTS_DIR, numbered
 from abmpm.io.writers.surface import surface_folder
 from abmpm.io.writers.viewer import ViewOptions
 from abmpm.post.viewer import Viewer
@@ -91,7 +92,10 @@ def _cmd_run(args) -> int:
             view=_view_options(args),
         )
     except KeyboardInterrupt:
-        print(f"interrupted; continue with: {_resume_command(args, out)}", file=sys.stderr)
+        if numbered(out / CHECKPOINTS_DIR, CHECKPOINT_RE):
+            print(f"interrupted; continue with: {_resume_command(args, out)}", file=sys.stderr)
+        else:  # stopped while setting up (a large collider, the first split): nothing to resume from
+            print("interrupted before the first checkpoint; run it again to start over", file=sys.stderr)
         return EXIT_INTERRUPTED
     except (SimulationBlowUp, OutOfMemory) as exc:
         raise type(exc)(f"{exc} (frames up to then, a checkpoint and summary.json are in {out})") from None
