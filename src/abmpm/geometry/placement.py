@@ -22,7 +22,8 @@ def collider_mesh(collider, resolve=lambda p: p, where: str = "colliders[0]") ->
             warnings.simplefilter("error", RuntimeWarning)
             mesh = _build(collider, resolve, where)
     except RuntimeWarning as exc:
-        raise SceneError(f"{where}: the collider cannot be built ({exc}); check its {size} and center") from None
+        raise SceneError(f"{where}: the collider cannot be built: its {size} or center is out of range "
+                         f"(the arithmetic overflowed: {exc})") from None
     v = np.asarray(mesh.vertices, dtype=np.float64)
     reach = float(np.abs(v).max()) if len(v) else 0.0
     if not np.isfinite(v).all() or reach > MAX_COORDINATE:
