@@ -176,3 +176,16 @@ def test_interrupted_while_setting_up_offers_no_resume(in_tmp, capsys, monkeypat
     code, err = run_cli(RUN, capsys)
     assert code == 130 and "Traceback" not in err
     assert "--resume" not in err and "before the first checkpoint" in err
+
+
+def test_overlapping_bodies_are_noted(in_tmp, capsys):
+    # two bodies sharing space add their masses there: said at the start of the run
+    (in_tmp / "scene.toml").write_text(SCENE + '[[bodies]]\nshape = "sphere"\nmaterial = "water"\n'
+                                       'center = [0.125, 0.075, 0.125]\nradius = 0.05\n')
+    assert run_cli(RUN, capsys)[0] == 0
+    notes = json.loads((in_tmp / "out" / "summary.json").read_text())["notes"]
+    assert any("bodies[0] and bodies[1] overlap" in n for n in notes), notes
+    (in_tmp / "scene.toml").write_text(SCENE + '[[bodies]]\nshape = "box"\nmaterial = "water"\n'
+                                       'min = [0.2, 0.0, 0.05]\nmax = [0.3, 0.15, 0.2]\n')  # touching only
+    assert run_cli(RUN, capsys)[0] == 0
+    assert not any("overlap" in n for n in json.loads((in_tmp / "out" / "summary.json").read_text()).get("notes", []))

@@ -18,7 +18,7 @@ from .geometry.meshes import limit_edge_length
 from .geometry.motion import KinematicMotion
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
-from .geometry.sampling import JITTER, sample_body_volume
+from .geometry.sampling import JITTER, body_lattice, sample_body_volume
 from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
@@ -129,3 +129,23 @@ def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:
             }
         )
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def overlapping_bodies(scene: Scene) -> list[str]:
+    """A note for each pair of bodies that share space: the lattice points of one inside
+    the shape of the other each carry both bodies' material there (their masses add)."""
+    st, notes = scene.simulation, []
+    if len(scene.bodies) < 2:
+        return notes
+    lattices = [body_lattice(b, st, scene.resolve, f"bodies[{i}]") for i, b in enumerate(scene.bodies)]
+    for i, (_, points) in enumerate(lattices):
+        for j, (shape, _) in enumerate(lattices):
+            if j <= i or len(points) == 0:
+                continue
+            near = np.all((points > shape.lo) & (points < shape.hi), axis=1)
+            n = int(shape.inside(points[near]).sum()) if near.any() else 0
+            if n:
+                notes.append(f"bodies[{i}] and bodies[{j}] overlap: {n} of bodies[{i}]'s {len(points)} particles lie "
+                             f"inside bodies[{j}], where both bodies' material then is (twice the density); move or "
+                             "shrink one")
+    return notes

@@ -37,6 +37,7 @@ from abmpm.errors import (OUT_OF_MEMORY_HINT, AbmpmError, OutOfMemory, OutputErr
                            allocation_failure)
 from abmpm.geometry import inside_mesh
 from abmpm.geometry.placement import collider_mesh
+from abmpm.inputs import overlapping_bodies
 from abmpm.io.outdir import SCENE_FILE, SUMMARY_FILE, clean_previous_run, clean_temporaries, prepare_out_dir
 from abmpm.io.progress import Progress
 from abmpm.io.resume import resume_from_checkpoint
@@ -103,7 +104,7 @@ def run(
         _check_initial_state(scene, start)
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, start))
     notes += _idle_colliders(scene, sim) + [n for n in (slow_start_note(scene, sim.mode),) if n]
-    notes += [] if resume else _walls_between_nodes(scene, sim, start)
+    notes += [] if resume else _walls_between_nodes(scene, sim, start) + overlapping_bodies(scene)
     if sim.mode == "adaptive" and not can_refine(scene):
         notes.append("adaptive mode with nothing to refine (no refinement box, no collider with refine = true): "
                      "every particle stays on the coarse grid, as in original mode")

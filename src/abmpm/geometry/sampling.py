@@ -283,6 +283,18 @@ def shape_bounds_and_inside(body, resolve: Callable = lambda p: p, where: str = 
     return body_shape(body, resolve, where)[:3]
 
 
+def body_lattice(body, settings, resolve: Callable = lambda p: p, where: str = "bodies[0]"):
+    """``(shape, points)``: a body's :class:`Shape` and its unjittered lattice points
+    (float64, (N, 3)), which its particles are jittered about."""
+    shape = body_shape(body, resolve, where)
+    _check_in_domain(shape.lo, shape.hi, settings, where)
+    # Clip to the domain so that rounding at a wall can never yield a point outside it.
+    lo = np.maximum(shape.lo, settings.domain_min)
+    hi = np.minimum(shape.hi, settings.domain_max)
+    base = lattice_points(lo, hi, settings.dx, body.particles_per_cell, settings.domain_min)
+    return shape, (base[shape.inside(base)] if len(base) else base)
+
+
 def sample_body_volume(
     body,
     settings,
@@ -303,14 +315,8 @@ def sample_body_volume(
     much mass at that spacing, 1.3% at a third of it, so that adaptive and finest mode
     would start with different masses); the bunny keeps ``h**3`` (no closed form).
     """
-    shape = body_shape(body, resolve, where)
-    _check_in_domain(shape.lo, shape.hi, settings, where)
+    shape, kept = body_lattice(body, settings, resolve, where)
     ppc = body.particles_per_cell
-    # Clip to the domain so that rounding at a wall can never yield a point outside it.
-    lo = np.maximum(shape.lo, settings.domain_min)
-    hi = np.minimum(shape.hi, settings.domain_max)
-    base = lattice_points(lo, hi, settings.dx, ppc, settings.domain_min)
-    kept = base[shape.inside(base)] if len(base) else base
     if len(kept) == 0:
         raise SceneError(f"{where}: body is smaller than the particle spacing; no particles sampled")
     volume = particle_volume(settings.dx, ppc)
