@@ -87,3 +87,29 @@ def _poison_velocity(sim, ids=None):
 @pytest.fixture
 def poison_velocity():
     return _poison_velocity
+
+
+# A scene of a few hundred water particles in a small box, for tests of what a run does
+# around the simulation (its errors, notes and files), not of the physics.
+SMALL_WATER_SCENE = """\
+name = "small"
+[simulation]
+domain_max = [0.4, 0.4, 0.4]
+dx = 0.05
+duration = 0.1
+fps = 30.0
+[[materials]]
+name = "water"
+model = "fluid"
+[[bodies]]
+shape = "box"
+material = "water"
+min = [0.05, 0.0, 0.05]
+max = [0.2, 0.15, 0.2]
+"""
+
+
+@pytest.fixture
+def small_water_scene():
+    """The TOML text of SMALL_WATER_SCENE."""
+    return SMALL_WATER_SCENE

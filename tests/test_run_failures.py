@@ -16,24 +16,6 @@ from abmpm.errors import OutputError
 from abmpm.scene import checks
 from abmpm.scene.loader import scene_from_dict
 
-SCENE = """\
-name = "small"
-[simulation]
-domain_max = [0.4, 0.4, 0.4]
-dx = 0.05
-duration = 0.1
-fps = 30.0
-[[materials]]
-name = "water"
-model = "fluid"
-[[bodies]]
-shape = "box"
-material = "water"
-min = [0.05, 0.0, 0.05]
-max = [0.2, 0.15, 0.2]
-"""
-
-
 def run_cli(args, capsys):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -52,9 +34,9 @@ def one_line_error(code, err, *expected):
 
 
 @pytest.fixture
-def in_tmp(tmp_path, monkeypatch):
+def in_tmp(tmp_path, monkeypatch, small_water_scene):
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "scene.toml").write_text(SCENE)
+    (tmp_path / "scene.toml").write_text(small_water_scene)
     return tmp_path
 
 
@@ -105,15 +87,16 @@ def test_other_runtime_errors_are_not_called_out_of_memory(in_tmp, capsys, monke
         main(RUN)
 
 
-def test_the_memory_check_counts_the_children_of_a_refinement_box():
+def test_the_memory_check_counts_the_children_of_a_refinement_box(small_water_scene):
     # adaptive mode splits every particle in a refinement box at its first step: b^3 each.
     # A box over the whole body: adaptive's estimate is finest's particle count (the same
     # lattice at dx / b); over none of it, original's.
-    doc = scene_from_dict({**_toml(SCENE)})
+    doc = scene_from_dict(_toml(small_water_scene))
     base = checks.memory_estimate(doc, "original")["particles"]
     for box, factor in (([[0.0, 0.0, 0.0], [0.4, 0.4, 0.4]], 3 ** 3), ([[0.3, 0.3, 0.3], [0.4, 0.4, 0.4]], 1)):
-        scene = scene_from_dict({**_toml(SCENE), "simulation": {
-            **_toml(SCENE)["simulation"], "refinement": {"mode": "adaptive", "factor": 3, "boxes": [box]}}})
+        doc = _toml(small_water_scene)
+        doc["simulation"]["refinement"] = {"mode": "adaptive", "factor": 3, "boxes": [box]}
+        scene = scene_from_dict(doc)
         assert checks.memory_estimate(scene)["particles"] == pytest.approx(base * factor, rel=1e-9)
 
 
@@ -178,14 +161,14 @@ def test_interrupted_while_setting_up_offers_no_resume(in_tmp, capsys, monkeypat
     assert "--resume" not in err and "before the first checkpoint" in err
 
 
-def test_overlapping_bodies_are_noted(in_tmp, capsys):
+def test_overlapping_bodies_are_noted(in_tmp, capsys, small_water_scene):
     # two bodies sharing space add their masses there: said at the start of the run
-    (in_tmp / "scene.toml").write_text(SCENE + '[[bodies]]\nshape = "sphere"\nmaterial = "water"\n'
+    (in_tmp / "scene.toml").write_text(small_water_scene + '[[bodies]]\nshape = "sphere"\nmaterial = "water"\n'
                                        'center = [0.125, 0.075, 0.125]\nradius = 0.05\n')
     assert run_cli(RUN, capsys)[0] == 0
     notes = json.loads((in_tmp / "out" / "summary.json").read_text())["notes"]
     assert any("bodies[0] and bodies[1] overlap" in n for n in notes), notes
-    (in_tmp / "scene.toml").write_text(SCENE + '[[bodies]]\nshape = "box"\nmaterial = "water"\n'
+    (in_tmp / "scene.toml").write_text(small_water_scene + '[[bodies]]\nshape = "box"\nmaterial = "water"\n'
                                        'min = [0.2, 0.0, 0.05]\nmax = [0.3, 0.15, 0.2]\n')  # touching only
     assert run_cli(RUN, capsys)[0] == 0
     assert not any("overlap" in n for n in json.loads((in_tmp / "out" / "summary.json").read_text()).get("notes", []))

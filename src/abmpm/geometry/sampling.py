@@ -325,13 +325,6 @@ def sample_body_volume(
     return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng, jitter).astype(np.float32), volume
 
 
-def sample_body(
-    body,
-    settings,
-    rng: np.random.Generator,
-    resolve: Callable = lambda p: p,
-    where: str = "bodies[0]",
-    jitter: float = JITTER,
-) -> np.ndarray:
-    """The positions of :func:`sample_body_volume`."""
-    return sample_body_volume(body, settings, rng, resolve, where, jitter)[0]
+def sample_body(*args, **kwargs) -> np.ndarray:
+    """The positions of :func:`sample_body_volume` (the same arguments)."""
+    return sample_body_volume(*args, **kwargs)[0]
