@@ -239,7 +239,7 @@ def _cmd_compare(args) -> int:
             sps = r.get("steps_per_second")
             _stdout().print(f"{_esc(r['scene'])} {r['mode']}: {r['status']}, "
                             f"{r.get('particles_end') or 0:,} particles, "
-                            f"{'-' if sps is None else f'{sps:.1f}'} steps/s, leaked {leaked}")
+                            f"{'-' if sps is None else f'{sps:.1f}'} steps/s, leaked {'-' if leaked is None else leaked}")
         _stdout().print(f"results: {_esc(out / 'table1.json')}, {_esc(out / 'report.md')}")
     failed = [r for r in records if r.get("status") != "completed"]
     if failed:

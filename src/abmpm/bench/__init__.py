@@ -337,6 +337,8 @@ def run_bench(argv: list[str] | None = None) -> dict:
         if args.json.is_dir() or not os.access(args.json.parent, os.W_OK):
             ap.error(f"--json {args.json}: not a file that can be written")
 
+    if args.reference is not None and not args.reference.is_file():
+        ap.error(f"--reference {args.reference}: no such file")
     if args.one_step is not None and args.suite != "interface":
         ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
     for option in ("criterion", "halo"):
@@ -379,11 +381,13 @@ def run_bench(argv: list[str] | None = None) -> dict:
             "numba_steps_per_s": yard, "ratio_to_numba": round(sps / yard, 3) if yard else None,
         }
         rows.append(row)
+        na = {k: "n/a" if row[k] is None else row[k] for k in ("thread_speedup", "ratio", "one_thread_ratio",
+                                                             "ratio_to_numba")}  # what was not measured
         print(
             f"{row['case']:<40} abmpm {sps:8.2f} steps/s ({threads} threads; 1 thread "
-            f"{(f'{sps1:.2f}' if sps1 else 'n/a')}, x{row['thread_speedup']})   reference "
-            f"{(f'{ref:8.2f}' if ref else '     n/a')} steps/s   ratio {row['ratio']} (1 thread {row['one_thread_ratio']})"
-            f"   numba {threads} threads {yard if yard else 'n/a'} -> {row['ratio_to_numba']}",
+            f"{(f'{sps1:.2f}' if sps1 else 'n/a')}, x{na['thread_speedup']})   reference "
+            f"{(f'{ref:8.2f}' if ref else '     n/a')} steps/s   ratio {na['ratio']} (1 thread {na['one_thread_ratio']})"
+            f"   numba {threads} threads {yard if yard else 'n/a'} -> {na['ratio_to_numba']}",
             flush=True,
         )
         del sim
