@@ -172,3 +172,12 @@ def test_overlapping_bodies_are_noted(in_tmp, capsys, small_water_scene):
                                        'min = [0.2, 0.0, 0.05]\nmax = [0.3, 0.15, 0.2]\n')  # touching only
     assert run_cli(RUN, capsys)[0] == 0
     assert not any("overlap" in n for n in json.loads((in_tmp / "out" / "summary.json").read_text()).get("notes", []))
+
+
+def test_a_scene_refused_while_its_particles_are_built_leaves_no_folder(in_tmp, capsys, small_water_scene):
+    # a body outside the domain is found when the particles are sampled, after the output
+    # folder was made: the empty folder goes again
+    (in_tmp / "scene.toml").write_text(small_water_scene.replace("max = [0.2, 0.15, 0.2]", "max = [0.2, 0.15, 0.5]"))
+    code, err = run_cli(RUN, capsys)
+    one_line_error(code, err, "bodies[0]", "outside the domain")
+    assert not (in_tmp / "out").exists()

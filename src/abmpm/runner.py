@@ -94,14 +94,20 @@ def run(
     total = total_frames(scene, frames)
     # memory and time stepping, before the output folder or anything big is made
     scene.check_feasible(None, device)
+    created = not out.exists()
     prepare_out_dir(out)
     clean_temporaries(out)
-    writers = build_writers(scene.output, preview=preview, view=view)  # refuses USD without usd-core
-
-    sim = Simulation(scene, device)
-    start = None if resume else sim.particles()  # read from the device once for the checks and notes
-    if start is not None:
-        _check_initial_state(scene, start)
+    try:
+        writers = build_writers(scene.output, preview=preview, view=view)  # refuses USD without usd-core
+        sim = Simulation(scene, device)
+        start = None if resume else sim.particles()  # read from the device once for the checks and notes
+        if start is not None:
+            _check_initial_state(scene, start)
+    except BaseException:  # a scene found impossible while building it: no empty folder left behind
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if nothing was written in it
+        raise
     resumed_from, notes = resume_from_checkpoint(out, scene, sim) if resume else (None, _trapped(scene, start))
     notes += _idle_colliders(scene, sim) + [n for n in (slow_start_note(scene, sim.mode),) if n]
     notes += [] if resume else _walls_between_nodes(scene, sim, start) + overlapping_bodies(scene)
