@@ -12,7 +12,7 @@ import numpy as np
 from abmpm.compare.outcomes import leaks, outcome_for
 from abmpm.compare.paper import PAPER_CONTACT, PAPER_SCENES, QUICK_OVERRIDES
 from abmpm.compare.report import scene_figures, write_report
-from abmpm.errors import AbmpmError, OutputError, SimulationBlowUp
+from abmpm.errors import AbmpmError, OutOfMemory, OutputError, SimulationBlowUp
 from abmpm.io.outdir import scene_from_folder
 from abmpm.post.preview import disk_frames
 from abmpm.runner import run
@@ -206,9 +206,10 @@ def compare(scene, modes=MODES, out="out/compare", frames: int | None = None, du
             on_run(i + 1, len(modes), base.name, mode, run_dir)
         try:
             summary = run(sc, run_dir, device=device, frames=frames, preview=False, progress=progress)
-        except SimulationBlowUp as exc:
+        except (SimulationBlowUp, OutOfMemory) as exc:  # recorded; the other modes still run
+            status = "blew_up" if isinstance(exc, SimulationBlowUp) else "out_of_memory"
             summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() \
-                else {"status": "blew_up", "message": str(exc)}
+                else {"status": status, "message": str(exc)}
         rec = measure(sc, run_dir, summary, window_from)
         rec["quick"] = bool(quick and base.name in QUICK_OVERRIDES)
         records.append(rec)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from abmpm.errors import AbmpmError, SimulationBlowUp
+from abmpm.errors import AbmpmError, OutOfMemory, SimulationBlowUp
 from abmpm.io.atomic import atomic_write
 from abmpm.io.outdir import prepare_out_dir
 from abmpm.io.summary import write_json
@@ -113,7 +113,7 @@ def run_one(
 ) -> dict[str, Any]:
     """Run ``scene`` (a SceneSource, Scene, plain dict, ``.toml`` path or built-in name)
     with ``overrides`` ({key: value}) into ``out`` in this process; return its row:
-    ``run``, the set values, ``status`` (completed, blew_up or error), ``message`` and
+    ``run``, the set values, ``status`` (completed, blew_up, out_of_memory or error), ``message`` and
     the headline figures of its summary. A blow-up or an error is recorded, not raised
     (KeyboardInterrupt is)."""
     out = Path(out)
@@ -125,9 +125,9 @@ def run_one(
             summary = run(sc, out, device=device, frames=frames, preview=preview, progress=False)
         row["status"] = summary.get("status", "completed")
         row["message"] = summary.get("message")
-    except SimulationBlowUp as exc:
+    except (SimulationBlowUp, OutOfMemory) as exc:
         summary = _read_summary(out)
-        row["status"], row["message"] = "blew_up", str(exc)
+        row["status"], row["message"] = ("blew_up" if isinstance(exc, SimulationBlowUp) else "out_of_memory"), str(exc)
     except AbmpmError as exc:
         row["message"] = " / ".join(str(exc).splitlines())
     except MemoryError:
