@@ -267,3 +267,19 @@ def test_bunny_mesh_spans_the_bunny():
     except ImportError:
         return  # concatenated parts: display only, not a closed surface
     assert mesh.is_watertight and mesh.body_count == 1
+
+
+def test_a_mesh_whose_shells_overlap_keeps_the_lattice_cubes(tmp_path, icosphere):
+    # two closed spheres 0.1 m apart in one file: the signed volume counts their lens
+    # (0.021 m^3) twice, the inside test once; that is more than a layer one spacing thick
+    # over the surface (area x h: 0.010 m^3) can explain, so the particles keep their cubes,
+    # which the inside test got right (within the sampling's 3%)
+    path = tmp_path / "two.obj"
+    other = icosphere.copy()
+    other.apply_translation((0.1, 0.0, 0.0))
+    trimesh.util.concatenate([icosphere, other]).export(path)
+    body = MeshBody(material="m", file=path.name, translation=(0.45, 0.5, 0.5))
+    x, each = sample_body_volume(body, SETTINGS, rng(), resolve=lambda f: tmp_path / f)
+    assert each == particle_volume(DX, 8)
+    lens = math.pi * (4 * 0.2 + 0.1) * (2 * 0.2 - 0.1) ** 2 / 12  # two balls of radius 0.2, 0.1 apart
+    assert len(x) * each == pytest.approx(2 * icosphere.volume - lens, rel=0.03)

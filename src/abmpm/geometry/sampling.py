@@ -53,6 +53,11 @@ class Shape(NamedTuple):
     hi: np.ndarray
     inside: InsideTest
     volume: float | None
+    # a mesh's surface area: its signed volume is trusted only within area x h of the
+    # lattice cubes' (a layer one spacing thick over the surface, the most that the cubes
+    # can miss or add); beyond, its shells overlap or nest the same way round (the signed
+    # volume counts such parts twice, the inside test once), and the cubes stay
+    area: float | None = None
 
 
 # A body's particles keep h**3 each where that sums to the shape's volume within this
@@ -171,7 +176,7 @@ def _mesh(body, resolve, where):
         )
     lo, hi = mesh.bounds
     return Shape(np.asarray(lo, np.float64), np.asarray(hi, np.float64), lambda p: inside_mesh(p, mesh),
-                 abs(float(mesh.volume)))
+                 abs(float(mesh.volume)), float(mesh.area))
 
 
 _SHAPES = {"box": _box, "sphere": _sphere, "ellipsoid": _ellipsoid, "mesh": _mesh, "bunny": _bunny}
@@ -320,7 +325,10 @@ def sample_body_volume(
     if len(kept) == 0:
         raise SceneError(f"{where}: body is smaller than the particle spacing; no particles sampled")
     volume = particle_volume(settings.dx, ppc)
-    if shape.volume is not None and abs(shape.volume / (len(kept) * volume) - 1.0) > EXACT_VOLUME_RTOL:
+    cubes = len(kept) * volume
+    trusted = shape.volume is not None and (shape.area is None
+                                            or abs(shape.volume - cubes) <= shape.area * lattice_spacing(settings.dx, ppc))
+    if trusted and abs(shape.volume / cubes - 1.0) > EXACT_VOLUME_RTOL:
         volume = shape.volume / len(kept)
     return jitter_points(kept, lattice_spacing(settings.dx, ppc), rng, jitter).astype(np.float32), volume
 
