@@ -181,3 +181,8 @@ def test_a_scene_refused_while_its_particles_are_built_leaves_no_folder(in_tmp, 
     code, err = run_cli(RUN, capsys)
     one_line_error(code, err, "bodies[0]", "outside the domain")
     assert not (in_tmp / "out").exists()
+
+
+def test_the_filesystem_root_is_no_output_folder(in_tmp, capsys):
+    code, err = run_cli(["run", "scene.toml", "--out", "/", "--no-preview", "-q", "--device", "cpu"], capsys)
+    one_line_error(code, err, "filesystem root", "name a folder")
