@@ -344,6 +344,8 @@ CASES: dict[str, tuple[str, tuple[str, ...]]] = {
     "whitespace_letter_text": (col('text = "AB"', 'text = "\\t\\n"', base=LETTERS), ("colliders[0].text", "visible")),
     "invisible_letter_text": (col('text = "AB"', 'text = "\\u200b"', base=LETTERS),
                               ("colliders[0].text", "no visible glyphs")),
+    "control_character_in_letter_text": (col('text = "AB"', 'text = "A\\u0007B"', base=LETTERS),
+                                         ("colliders[0].text", "U+0007", "control")),
     # ---- missing and broken files
     "missing_mesh_body_file": (mesh_body("missing.obj"), ("missing.obj", "not found", "bodies[2].file")),
     "missing_mesh_collider_file": (GOOD + MESH_COLLIDER.format(name="missing.stl"),

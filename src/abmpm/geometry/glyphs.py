@@ -11,9 +11,12 @@ mesh) is built by :func:`abmpm.geometry.procedural.letter_panel`.
 
 from __future__ import annotations
 
+import unicodedata
+
 import numpy as np
 import trimesh
-from matplotlib.font_manager import FontProperties
+from matplotlib.font_manager import FontProperties, findfont
+from matplotlib.ft2font import FT2Font
 from matplotlib.path import Path
 from matplotlib.textpath import TextPath
 from scipy.spatial import cKDTree
@@ -117,12 +120,31 @@ def _clean_polygon(poly, tol: float):
     return out if out.is_valid and out.area > 0 else None
 
 
+def _check_characters(text: str, font: str) -> None:
+    """ValueError naming the first character of ``text`` that would not cut its own shape: a
+    control or format character, or one the font has no glyph for (matplotlib would cut
+    its fallback box instead). Blanks are fine: they cut nothing."""
+    face = FT2Font(findfont(FontProperties(family=font)))
+    for c in text:
+        if c.isspace() and c in " \u00a0":
+            continue
+        what = None
+        if unicodedata.category(c)[0] == "C" or c.isspace():
+            what = "a control or layout character"
+        elif face.get_char_index(ord(c)) == 0:
+            what = f"not in the font {font!r}"
+        if what:
+            raise ValueError(f"letter_panel: text {text!r}: {c!r} (U+{ord(c):04X}) is {what}; use letters, digits "
+                             "and punctuation")
+
+
 def _text_layout(text, size, font_size, font):
     """Glyph geometry scaled to metres and centred on the origin of the panel."""
     w, h = size
     glyphs = _glyph_polygons(text, font)
     if glyphs.is_empty:
         raise ValueError(f"letter_panel: text {text!r} has no visible glyphs")
+    _check_characters(text, font)
     x0, y0, x1, y1 = glyphs.bounds
     if font_size is None:
         # fill ~60% of the panel height with the glyphs, but keep them inside 90% of the width
