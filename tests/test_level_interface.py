@@ -15,6 +15,7 @@ from abmpm.bench.interface import (
     plate_with_slit,
     run_dam_break,
     run_layered_tank,
+    run_piston,
     run_slit,
     run_tank,
     tank_at_rest,
@@ -309,3 +310,17 @@ def test_the_plate_tally_counts_issue_26s_goals():
     t = plate_tally(rows)
     assert (t["cases"], t["within_10pct"], t["steps_within_5pct"]) == (4, 1, 2)
     assert t["mean_log_ratio"] == pytest.approx((np.log(1.099) + np.log(0.899) + np.log(1.2)) / 3, abs=1e-4)
+
+
+@pytest.mark.slow
+def test_a_jelly_pressed_through_a_slit_passes_what_finest_passes():
+    # An elastic block pressed through the 1.5-cell slit at b = 3 by a sticky piston (0.3 s):
+    # the mass below the plate in adaptive mode within the issue's 10% of finest's, in no
+    # more than 1.05x its steps, and original clearly short of both (the coarse grid holds
+    # the jelly on the slit's rims). Measured 2026-11-29: 0.2612 / 0.2561 (1.020) in 0.983x
+    # the steps, original 0.2107. Until that day the block (0.12 m thick, 7 coarse layers of
+    # 0.02 m) was 17% heavier in adaptive mode than in finest and read 0.957.
+    r = run_piston(0.3, "cpu", b=3)
+    assert abs(r["through_ratio"] - 1.0) <= 0.10, r
+    assert r["steps_ratio"] <= 1.05, r
+    assert r["original"]["through"] < 0.9 * r["finest"]["through"], r
