@@ -198,24 +198,10 @@ def test_blow_up_keeps_frames_checkpoint_and_summary(tmp_path, monkeypatch, pois
     assert (out / "preview.mp4").is_file()  # what happened up to the blow-up
 
 
-def test_blow_up_cli_exit_code(tmp_path, monkeypatch, capsys, poison_velocity):
+def test_blow_up_cli_exit_code(tmp_path, monkeypatch, capsys, poison_velocity, small_water_scene):
     _explode_after_frame(monkeypatch, 1, poison_velocity)
     path = tmp_path / "tiny.toml"
-    path.write_text(
-        """
-[simulation]
-domain_max = [0.4, 0.4, 0.4]
-dx = 0.05
-[[materials]]
-name = "water"
-model = "fluid"
-[[bodies]]
-shape = "box"
-material = "water"
-min = [0.0, 0.0, 0.0]
-max = [0.15, 0.2, 0.4]
-"""
-    )
+    path.write_text(small_water_scene)
     out = tmp_path / "out"
     code = main(["run", str(path), "--out", str(out), "--frames", "3", "--no-preview", "-q"])
     err = capsys.readouterr().err
@@ -226,7 +212,7 @@ max = [0.15, 0.2, 0.4]
 
 
 @pytest.mark.parametrize("how", ["ctrl_c", "sigterm"])
-def test_interrupt_checkpoints_last_frame_and_resumes(how, tmp_path, monkeypatch, capsys):
+def test_interrupt_checkpoints_last_frame_and_resumes(how, tmp_path, monkeypatch, capsys, small_water_scene):
     """Ctrl-C, or a SIGTERM (a job scheduler, `timeout`), mid-frame: the last whole frame
     is checkpointed, the summary says "interrupted", and the printed command resumes."""
     original = Simulation.advance
@@ -246,11 +232,7 @@ def test_interrupt_checkpoints_last_frame_and_resumes(how, tmp_path, monkeypatch
 
     monkeypatch.setattr(Simulation, "advance", advance)
     path = tmp_path / "tiny.toml"
-    path.write_text(
-        '[simulation]\ndomain_max = [0.4, 0.4, 0.4]\ndx = 0.05\n'
-        '[[materials]]\nname = "water"\nmodel = "fluid"\n'
-        '[[bodies]]\nshape = "box"\nmaterial = "water"\nmin = [0.0, 0.0, 0.0]\nmax = [0.15, 0.2, 0.4]\n'
-    )
+    path.write_text(small_water_scene)
     out = tmp_path / "out"
     code = main(["run", str(path), "--out", str(out), "--frames", "4", "--mode", "original", "-q"])
     err = capsys.readouterr().err
