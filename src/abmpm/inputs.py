@@ -18,7 +18,7 @@ from .geometry.meshes import limit_edge_length
 from .geometry.motion import KinematicMotion
 from .geometry.placement import collider_mesh
 from .geometry.region import RegionParams
-from .geometry.sampling import JITTER, body_lattice, sample_body_volume
+from .geometry.sampling import JITTER, body_lattice, body_shape, sample_body_volume
 from .scene.model import Scene
 from .sim.boundary import FACES
 from .sim.collider_set import RigidBody
@@ -133,15 +133,20 @@ def sample_scene(scene: Scene, split_factor: int = 1) -> dict[str, np.ndarray]:
 
 def overlapping_bodies(scene: Scene) -> list[str]:
     """A note for each pair of bodies that share space: the lattice points of one inside
-    the shape of the other each carry both bodies' material there (their masses add)."""
+    the shape of the other each carry both bodies' material there (their masses add).
+    Only bodies whose bounding boxes overlap are sampled again."""
     st, notes = scene.simulation, []
     if len(scene.bodies) < 2:
         return notes
-    lattices = [body_lattice(b, st, scene.resolve, f"bodies[{i}]") for i, b in enumerate(scene.bodies)]
-    for i, (_, points) in enumerate(lattices):
-        for j, (shape, _) in enumerate(lattices):
-            if j <= i or len(points) == 0:
-                continue
+    shapes = [body_shape(b, scene.resolve, f"bodies[{i}]") for i, b in enumerate(scene.bodies)]
+    for i, body in enumerate(scene.bodies):
+        others = [j for j in range(i + 1, len(shapes))
+                  if np.all(shapes[i].lo < shapes[j].hi) and np.all(shapes[j].lo < shapes[i].hi)]
+        if not others:
+            continue
+        _, points = body_lattice(body, st, scene.resolve, f"bodies[{i}]", shapes[i])
+        for j in others:
+            shape = shapes[j]
             near = np.all((points > shape.lo) & (points < shape.hi), axis=1)
             n = int(shape.inside(points[near]).sum()) if near.any() else 0
             if n:

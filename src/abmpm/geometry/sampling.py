@@ -288,10 +288,11 @@ def shape_bounds_and_inside(body, resolve: Callable = lambda p: p, where: str = 
     return body_shape(body, resolve, where)[:3]
 
 
-def body_lattice(body, settings, resolve: Callable = lambda p: p, where: str = "bodies[0]"):
-    """``(shape, points)``: a body's :class:`Shape` and its unjittered lattice points
-    (float64, (N, 3)), which its particles are jittered about."""
-    shape = body_shape(body, resolve, where)
+def body_lattice(body, settings, resolve: Callable = lambda p: p, where: str = "bodies[0]",
+                 shape: Shape | None = None):
+    """``(shape, points)``: a body's :class:`Shape` (``shape`` where already read) and its
+    unjittered lattice points (float64, (N, 3)), which its particles are jittered about."""
+    shape = shape or body_shape(body, resolve, where)
     _check_in_domain(shape.lo, shape.hi, settings, where)
     # Clip to the domain so that rounding at a wall can never yield a point outside it.
     lo = np.maximum(shape.lo, settings.domain_min)

@@ -85,9 +85,10 @@ def checkpoint_path(out_dir: str | os.PathLike, frame: int) -> Path:
 def prepare_out_dir(out: Path) -> None:
     """Create ``out`` and check that files can be written in it (OutputError if not)."""
     full = Path(out).resolve()
-    if full == Path(full.anchor) or full == Path.home().resolve():
-        raise OutputError(f"output folder {out} is {'the filesystem root' if full == Path(full.anchor) else 'your home folder'}: "
-                          "a run writes frames/, checkpoints/ and summary.json there; name a folder for it")
+    refused = {Path(full.anchor): "the filesystem root", Path.home().resolve(): "your home folder"}.get(full)
+    if refused:
+        raise OutputError(f"output folder {out} is {refused}: a run writes frames/, checkpoints/ and summary.json "
+                          "there; name a folder for it")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
