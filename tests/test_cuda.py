@@ -31,7 +31,7 @@ def test_cpu_and_cuda_agree_on_a_short_run(cuda_available):
 
 # the solver's kernel modules (geometry.sampling's one kernel is generic: compiled on use)
 KERNEL_MODULES = ["abmpm.sim.grid_update", "abmpm.sim.parallel", "abmpm.sim.colliders", "abmpm.sim.collider_set",
-                  "abmpm.sim.face_cells", "abmpm.sim.reconstruct",
+                  "abmpm.sim.face_cells", "abmpm.sim.partition", "abmpm.sim.reconstruct",
                   "abmpm.sim.refine", "abmpm.sim.sorting", "abmpm.sim.split", "abmpm.sim.stiffness",
                   "abmpm.sim.time_levels"]
 # Turing (T4, RTX 20xx), the oldest Warp targets, and Hopper (H100, H200), the newest
@@ -81,6 +81,7 @@ def test_kernels_compile_for_cuda_without_a_gpu():
     from abmpm.sim.g2p import g2p_kernel
     from abmpm.sim.materials import ALL_MODELS
     from abmpm.sim.p2g import PASSES, p2g_kernel
+    from abmpm.sim.partition_transfers import partition_kernels
     from abmpm.sim.time_levels import p2g_slow_kernel
 
     # The single-model kernels are the same code with branches removed: compiled for
@@ -88,6 +89,7 @@ def test_kernels_compile_for_cuda_without_a_gpu():
     kernels = [(k, ARCHS) for k in [p2g_kernel(name, cpic) for name in PASSES for cpic in (False, True)]
                + [g2p_kernel(sparse, cpic) for sparse in (False, True) for cpic in (False, True)]]
     kernels += [(p2g_slow_kernel(True), ARCHS[:1])]  # a time step per level's scatter, CPIC, every model
+    kernels += [(k, ARCHS[:1]) for k in partition_kernels(True)]  # the partition coupling's, CPIC, every model
     for model in ALL_MODELS:
         kernels += [(p2g_kernel("sparse", True, (model,)), ARCHS[:1]),
                     (g2p_kernel(True, True, (model,)), ARCHS[:1])]

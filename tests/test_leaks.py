@@ -223,13 +223,14 @@ class PanelCrossing:
         return int(shapely.contains_xy(self.material, hit[:, 0], hit[:, 1]).sum())
 
 
-def run_watched(spec, body, gravity, side_of, seconds=SECONDS, mode="original", crossing=None, factor=2):
+def run_watched(spec, body, gravity, side_of, seconds=SECONDS, mode="original", crossing=None, factor=2,
+                coupling="overlap"):
     """Run the scene; after every substep count the particles on the wrong side
     (``side_of``: against the side they, or the parent they were split from, started
     on) or that crossed the collider in that step (``crossing``).
     Returns (worst count, steps, particles at the end, particles split)."""
     # adaptive: a box around the impact is refined (keeps the fine grid, and the test, small)
-    refinement = sm.Refinement(mode=mode, factor=factor, boxes=[(tuple(C - 0.15), tuple(C + 0.15))])
+    refinement = sm.Refinement(mode=mode, factor=factor, boxes=[(tuple(C - 0.15), tuple(C + 0.15))], coupling=coupling)
     spec = spec.model_copy(update={"refine": False})
     scene = abmpm.Scene(
         simulation=abmpm.SimulationSettings(domain_max=(L, L, L), dx=DX, gravity=tuple(float(g) for g in gravity),
@@ -328,15 +329,19 @@ def test_letter_panel_is_crossed_only_through_its_holes(winding, side, speed, tm
 
 
 @pytest.mark.parametrize("case", ["sheet-back", "thin_box-front", "letter_panel-back", "hourglass-inside",
-                                  "letter_panel-back-3", "hourglass-inside-3"])
+                                  "letter_panel-back-3", "hourglass-inside-3", "sheet-back-2-partition",
+                                  "letter_panel-back-2-partition"])
 def test_split_particles_stay_on_their_side(case, tmp_path):
     """Adaptive mode: the particles are split next to the surface (Eq. 15); no child
     may land on, or later move to, the other side of its parent. At b = 3 (the cases
     ending in 3): in the hourglass, level-0 particles in the glass's band move with the
     fine grid (docs/method.md), up to 11 at a time; on the letter panel one level-1
     particle crossed next to a letter's edge until ``stop_crossing`` cast the
-    particle's own path as well as the ray from its backed-off start."""
+    particle's own path as well as the ray from its backed-off start. With the partition
+    coupling (the cases ending in partition) each particle reaches both grids' nodes in the
+    band, each grid's masked by its own colors (sim/partition_transfers.py)."""
     kind, where, *factor = case.split("-")
+    coupling = factor.pop() if factor and factor[-1] == "partition" else "overlap"
     side = 1 if where in ("front", "inside") else -1
     crossing = side_of = None
     if kind == "letter_panel":
@@ -345,7 +350,7 @@ def test_split_particles_stay_on_their_side(case, tmp_path):
     else:
         spec, body, gravity, side_of = _case(kind, side, 15.0, "reversed", tmp_path)
     worst, steps, n, split = run_watched(spec, body, gravity, side_of, seconds=0.15, mode="adaptive",
-                                         crossing=crossing, factor=int(factor[0]) if factor else 2)
+                                         crossing=crossing, factor=int(factor[0]) if factor else 2, coupling=coupling)
     assert split > 0  # the case splits particles near the surface
     assert worst == 0, f"{worst} of {n} particles on the wrong side (after each of {steps} steps)"
 

@@ -40,6 +40,7 @@ def solver_config(scene: Scene, mode: str) -> SolverConfig:
         surface_threshold=st.refinement.surface_threshold,
         seed=st.seed,
         time_steps=st.refinement.time_steps,
+        coupling=st.refinement.coupling,
         stiffening=st.stiffening,
         cuda_graph=st.cuda_graph,
         cfl=st.cfl,

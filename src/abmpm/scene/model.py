@@ -99,6 +99,11 @@ class Refinement(_Strict):
         "per_level", description="per_level: level-0 particles far from the fine level take the coarse time step; "
         "global: every particle takes the finest step"
     )
+    coupling: Literal["overlap", "partition"] = Field(
+        "overlap", description="overlap: the paper's Eq. 8 (each level scatters to both grids, gathers from its "
+        "own); partition: one partition of unity over both grids' functions, momentum exact, one time step for "
+        "all (experimental; docs/method.md, 'The two grids as one basis')"
+    )
     merge_margin: int = Field(1, ge=0, description="hysteresis: coarse cells beyond the region before a merge")
     reconstruct: bool = Field(
         True, description="surface particle reconstruction after a split (paper Section 4.3); false: plain split"
@@ -149,6 +154,13 @@ class SimulationSettings(_Strict):
     cuda_graph: bool = Field(
         False, description="replay the substeps between host points as captured CUDA graphs (CUDA only; experimental)"
     )
+
+    @model_validator(mode="after")
+    def _partition_without_images(self):
+        if self.refinement.coupling == "partition" and self.walls.images:
+            raise ValueError("refinement.coupling = 'partition' does not add the walls' images yet: set walls.images "
+                             "= false or coupling = 'overlap'")
+        return self
 
     @field_validator("device")
     @classmethod

@@ -35,6 +35,11 @@ class SolverConfig:
     (sim/split.py), as it draws the sampling's (geometry/sampling.py)."""
     threads: int | None = None
     """CPU threads for the transfers (None: ABMPM_THREADS, else every core); CUDA: ignored."""
+    coupling: str = "overlap"
+    """Adaptive mode: how the two grids meet. "overlap", the paper's Eq. 8: each level
+    scatters to both grids and gathers from its own; "partition": every particle transfers
+    with one partition of unity built from both grids' functions (sim/partition.py), so
+    momentum is conserved exactly (one time step for all particles)."""
     time_steps: str = "global"
     """Adaptive mode: "per_level" lets the level-0 particles far from the fine level take
     the coarse step (sim/time_levels.py); "global": every particle takes the finest step."""

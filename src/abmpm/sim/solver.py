@@ -1,32 +1,29 @@
 """The adaptive-boundary MPM step, in one place (paper Algorithm 1).
 
-A step is split into host work at points the solver announces and a pure device
-substep, so that the substeps between two host points can run as one captured
-CUDA graph (docs/architecture.md, "Segments and CUDA graphs"):
-
-``begin_segment(state, time, dt, substeps)``, a host point:
+A step is split into host work at points the solver announces and a pure device substep, so
+that the substeps between two host points can run as one captured CUDA graph
+(docs/architecture.md, "Segments and CUDA graphs"). ``begin_segment(state, time, dt, substeps)``,
+a host point:
 
 1. move the colliders to ``time`` and rebuild their color distance field;
 2. adaptive mode, every ``refine_every(cfl)`` steps (4, fewer at a cfl above 0.5): split the
-   level-0 particles that entered the refined region (Eq. 15), move the children of
-   surface parents onto the parent-level surface (Eqs. 16-20), and give the fine grid
-   the blocks its particles need;
-3. reserve every buffer the substeps use, set dt on the device, reset the CFL
-   signal slots (and keep a copy of the particles if the segment may be rewound).
+   level-0 particles that entered the refined region (Eq. 15), move the children of surface
+   parents onto the parent-level surface (Eqs. 16-20), give the fine grid the blocks it needs;
+3. reserve every buffer the substeps use, set dt on the device, reset the CFL signal slots
+   (and keep a copy of the particles if the segment may be rewound).
 
 ``substep(state)``, launches only (no allocation, no read-back):
 
 4. P2G of every particle to every grid, compatible nodes only (Eqs. 8-10);
 5. grid update: gravity, domain walls, collider contact (Eqs. 3-4, 22);
-6. G2P of each particle from its own level's grid, with boundary velocities at
-   incompatible nodes (Eqs. 11-12, 23-25), deformation update and return mapping
-   (Eqs. 7, 13-14), advection that never crosses a collider; the fastest particle
-   into this substep's CFL signal slot, its stiffening bounded node by node (sim/stiffness.py).
+6. G2P of each particle from its own level's grid (``coupling = "partition"``: from both, with
+   the functions it scattered with, sim/partition.py), with boundary velocities at incompatible
+   nodes (Eqs. 11-12, 23-25), deformation update and return mapping (Eqs. 7, 13-14), advection
+   that never crosses a collider; the fastest particle into the CFL signal (sim/stiffness.py).
 
-``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a
-captured graph), ``end_segment()`` reads the per-substep signals back at once.
-
-Everything else (sampling, output, diagnostics, time stepping) lives outside.
+``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a captured graph),
+``end_segment()`` reads the per-substep signals back at once. Everything else (sampling, output,
+diagnostics, time stepping) lives outside.
 """
 
 from __future__ import annotations
@@ -39,7 +36,7 @@ import warp as wp
 from . import collider_set as collider_host
 from . import colliders as collider_kernels
 from . import grid_update as node_pass_kernels
-from . import parallel, reconstruct, refine, sorting, time_levels
+from . import parallel, partition, reconstruct, refine, sorting, time_levels
 from .boundary import FACES
 from .collider_set import ColliderSet, color_field, empty_colliders, grow_color_field
 from .config import SolverConfig
@@ -49,6 +46,7 @@ from .grid_update import grid_update
 from .materials import MaterialParams, model_ids
 from .p2g import PASS_LABEL, PASS_LEVEL, p2g_kernel
 from .parallel import CPU_NODE_CHUNK, MIN_TRANSFER_RANGE, KernelProfile, Launcher, reset_reach
+from .partition import Partition
 from .refine import REFINE_EVERY, Refiner, refine_every
 from .segments import Graphs, SegmentStart, Signals, substep_buffers
 from .sorting import level_ranges, sort_by_cell
@@ -87,6 +85,9 @@ class MPMSolver:
         if colliders is not None:  # the particles' closest points, per cell (sim/face_cells.py)
             colliders.index_faces(self.grids[0], self.launcher)
         self.collider_arrays = colliders.arrays if colliders is not None else empty_colliders(device)
+        # the two grids as one partition of unity (sim/partition.py), or the paper's overlap (Eq. 8)
+        self.partition = (Partition(*self.grids, self.launcher, device, self.cpic, self.models)
+                          if self.refiner is not None and config.coupling == "partition" else None)
         for g in self.grids:
             g.color = color_field(g.capacity if colliders is not None else 1, device)
             if colliders is not None and not g.sparse:
@@ -105,7 +106,7 @@ class MPMSolver:
         self.signal = self._signals.array
         self.stiffness = StiffnessSignal(device, config.stiffening == "node")  # bounded node by node, after G2P
         # level (None: all) -> [(first, count)], one range per level once sorted (_find_level_ranges)
-        self._partition = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
+        self._level_scratch = wp.zeros(2, dtype=wp.int32, device=device)  # level_ranges' scratch
         self._ranges: dict[int | None, list[tuple[int, int]]] = {}
         self._sorted: ParticleState | None = None  # sort_by_cell's scratch copy
         self._segment, self._substep = 0, 0  # substeps in the current segment, of which taken
@@ -117,7 +118,8 @@ class MPMSolver:
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
         # A time step per level (sim/time_levels.py): the slow set, in adaptive mode
         # without moving colliders; ``block`` substeps of the fast set make one of its steps.
-        per_level = config.time_steps == "per_level" and (colliders is None or colliders.static)
+        per_level = (config.time_steps == "per_level" and (colliders is None or colliders.static)
+                     and self.partition is None)
         self.slow = SlowSet(self.grid, self.launcher, device) if self.refiner and per_level else None
         self._no_slow = no_slow(device)
         self.slow_count = 0  # particles of the slow set, at the front of the storage (counted at each sort)
@@ -132,6 +134,8 @@ class MPMSolver:
         the first segment, so that a level reached only later in the run (the fine
         grid's) never compiles in the middle of it."""
         kernels = [reset_reach, grid_update, *self.stiffness.kernels()]
+        if self.partition is not None:
+            return kernels + list(self.partition.kernels)
         kernels += [p2g_kernel(name, self.cpic, self.models) for name, _ in self.p2g_passes()]
         kernels += [g2p_kernel(g.sparse, self.cpic, self.models) for g in self.grids]
         kernels += [p2g_slow_kernel(self.cpic, self.models)] if self.slow is not None else []
@@ -155,7 +159,7 @@ class MPMSolver:
         if self.colliders is not None:
             modules += [collider_kernels, collider_host]
         if self.refiner is not None:
-            modules += [refine, reconstruct]
+            modules += [refine, reconstruct, partition]
         for module in modules:
             wp.load_module(module, device=self.device)
         for k in self.transfer_kernels():
@@ -292,7 +296,7 @@ class MPMSolver:
         them all."""
         if self._substep >= self._segment:
             raise RuntimeError("the segment is complete: call begin_segment first")
-        if self.refiner is not None:  # 3b. which grid moves each particle whose coarse cell holds both levels
+        if self.refiner is not None and self.partition is None:  # 3b. the grid that moves a particle among both levels
             self.refiner.coarse_children(state, self._on_fine, self.collider_arrays, self.grid.color, self.cpic,
                                          skip=self._ranges["slow"][0][1])
         self.p2g(state)  # 4. P2G (Eqs. 8-10)
@@ -360,7 +364,7 @@ class MPMSolver:
         self._find_level_ranges(state)
 
     def _find_level_ranges(self, state: ParticleState) -> None:  # self._ranges (__init__)
-        ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._partition)
+        ranges = level_ranges(state, [g.level for g in self.grids], self.refiner is not None, self._level_scratch)
         self._ranges = split_off_slow(ranges, self.slow_count if self.block > 1 else 0)
 
     def _capture(self, state: ParticleState, key: tuple):
@@ -377,6 +381,8 @@ class MPMSolver:
 
     def p2g(self, s: ParticleState) -> None:
         """Every particle to every grid (Eqs. 8-10), pass by pass (``p2g_passes``)."""
+        if self.partition is not None:
+            return self.partition.p2g(s, self._ranges[None], self.materials, self._dt)
         for name, g in self.p2g_passes():
             private = self.launcher.private_grids(g.level, g.mv, g.m)  # a CPU part's own sums
             kernel = p2g_kernel(name, self.cpic, self.models)
@@ -399,7 +405,7 @@ class MPMSolver:
         chunk = 1 if self.launcher.device.is_cuda else CPU_NODE_CHUNK
         for g in self.grids:
             private = self.launcher.private_grids(g.level, g.mv, g.m)  # the other CPU threads' sums
-            coarse_adaptive = self.refiner is not None and not g.sparse
+            coarse_adaptive = self.refiner is not None and not g.sparse and self.partition is None
             slow = self.slow.nodes if coarse_adaptive and self.slow is not None else self._no_slow
             self.launcher.launch(grid_update, -(-g.node_count // chunk),
                                  [g.spec, self.collider_arrays, g.color, self._dt, g.mv, g.m, g.v,
@@ -413,6 +419,9 @@ class MPMSolver:
     def g2p(self, s: ParticleState, signal_slots: list) -> None:
         """Each particle from its own level's grid (Eqs. 11-14, 23-25); its speed and
         stiffening into ``signal_slots`` (one per CPU part)."""
+        if self.partition is not None:
+            return self.partition.g2p(s, self._ranges[None], self.materials, self.collider_arrays, self._dt,
+                                      self.stiffness.stiff, signal_slots)
         for g in self.grids:
             kernel = g2p_kernel(g.sparse, self.cpic, self.models)
             common = [self.materials, g.spec, self.collider_arrays, g.color, self._dt, g.v, s.arrays(), self._cmask,
@@ -438,8 +447,6 @@ class MPMSolver:
         """Steps taken so far (refinement runs every ``refine_every`` steps), for resuming."""
         self._steps = steps
 
-    # ------------------------------------------------------------------ colliders
-
     def move_colliders(self, time: float) -> None:
         """Colliders to time t (Eq. 22 velocities), color fields rebuilt if they moved."""
         if self.colliders is not None and self.colliders.move(time, self.grids, self.launcher):
@@ -455,7 +462,7 @@ class MPMSolver:
     def set_region(self, cells: np.ndarray, state: ParticleState | None = None) -> None:
         """Refined coarse cells (adaptive mode)."""
         self.refiner.set_region(cells)
-        self._after_activation(0)
+        self._after_activation(0, region_changed=True)
         if state is not None:
             self.refine(state)
 
@@ -470,13 +477,13 @@ class MPMSolver:
             self.sort_by_cell(state, keep_slow=True)  # the children joined at the end: each level contiguous again
         self._after_activation(self.refiner.activate(state, 0 if n_split else skip))
 
-    def _after_activation(self, first_slot: int) -> None:
-        fine = self.grids[1]
+    def _after_activation(self, first_slot: int, region_changed: bool = False) -> None:
+        fine = self.grids[1]  # the new blocks' colors and shares
         if self.colliders is not None:
             fine.color = grow_color_field(fine.color, fine.capacity)
             self.colliders.color(fine, self.launcher, first_slot)
-
-    # ------------------------------------------------------------------ sorting
+        if self.partition is not None:
+            self.partition.update(self.refiner.region_cells if region_changed else None, first_slot)
 
     def sort_by_cell(self, state: ParticleState, keep_slow: bool = False) -> None:
         """Reorder particles by coarse cell (P2G/G2P touch memory coherently), by level first
