@@ -159,11 +159,55 @@ def _make_gather_footprint(cpic: bool):
     return gather_footprint
 
 
-def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
+def make_finish(cpic: bool, models: tuple[int, ...]):
+    """The end of every G2P: Eq. 7 with the velocity gradient ``grad``, then the material's
+    return mapping (Eqs. 13-14), advection that never crosses a collider (and the particle's
+    colors on its own grid ``g``), the CFL signal, and the particle's new x, v and C."""
     ops = dispatch(models)
     deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
+
+    @wp.func(inline=True)
+    def finish(materials: wp.array(dtype=MaterialParams), colliders: ColliderArrays, s: ParticleArrays, p: int,
+               g: GridSpec, cf: ColorField, xp: wp.vec3, new_v: wp.vec3, new_C: wp.mat33, grad: wp.mat33, dt: float,
+               stiff: wp.array(dtype=float), signal: wp.array(dtype=float)):
+        mat = materials[s.material[p]]
+        wp.static(deform_particle)(mat, s.F, s.history, p, grad, dt)
+        xn = clamp_to_domain(g, xp + dt * new_v)
+        v_end = new_v
+        if wp.static(cpic):
+            cb = s.surface_body[p]
+            # a particle with no color that ends its step outside the band, after a move
+            # shorter than the band, stays uncolored: only the others pay for the
+            # call (Warp copies its struct arguments)
+            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * g.dx or near_surface(cf, g, xn):
+                xn, v_end, c = advect(colliders, cf, g, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
+                s.surface_point[p] = c.surface_point
+                s.surface_side[p] = c.surface_side
+                s.surface_body[p] = c.body
+        # The fastest particle, and the most compressed fluid's sound speed over its
+        # speed at rest, set the next step's CFL time step; a non-finite velocity
+        # reads as infinitely fast, which stops the run. Beyond the CFL number's
+        # margin the stiffening is bounded node by node (sim/stiffness.py).
+        speed = wp.length(v_end)
+        if not wp.isfinite(speed):
+            speed = FAST
+        wp.atomic_max(signal, 0, speed)
+        stiffening = wp.static(sound_speed_ratio)(mat, s.history[p])
+        if stiff.shape[0] > 1:  # sim/stiffness.py bounds what lies beyond the margin
+            stiff[p] = stiffening
+            stiffening = wp.min(stiffening, SLACK)
+        wp.atomic_max(signal, 1, stiffening)
+        s.x[p] = xn
+        s.v[p] = v_end
+        s.C[p] = new_C
+
+    return finish
+
+
+def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
     stencil, node_at = STORAGE[sparse]
     gather_footprint = _make_gather_footprint(cpic)
+    finish = make_finish(cpic, models)  # Eqs. 7, 13-14, advection, the CFL signal
 
     @variant("g2p_sparse" if sparse else "g2p_dense", cpic, models=models)
     def g2p(
@@ -230,36 +274,7 @@ def _make_g2p(sparse: bool, cpic: bool, models: tuple[int, ...]):
             if level0_here:
                 gb = coarse
                 cf = coarse_color
-        # Eq. 7, then the material's return mapping (Eqs. 13-14)
-        mat = materials[s.material[p]]
-        wp.static(deform_particle)(mat, s.F, s.history, p, new_C, dt)
-        xn = clamp_to_domain(gb, xp + dt * new_v)
-        if wp.static(cpic):
-            cb = s.surface_body[p]
-            # a particle with no color that ends its step outside the band, after a move
-            # shorter than the band, stays uncolored: only the others pay for the
-            # call (Warp copies its struct arguments)
-            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * gb.dx or near_surface(cf, gb, xn):
-                xn, new_v, c = advect(colliders, cf, gb, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
-                s.surface_point[p] = c.surface_point
-                s.surface_side[p] = c.surface_side
-                s.surface_body[p] = c.body
-        # The fastest particle, and the most compressed fluid's sound speed over its
-        # speed at rest, set the next step's CFL time step; a non-finite velocity
-        # reads as infinitely fast, which stops the run. Beyond the CFL number's
-        # margin the stiffening is bounded node by node (sim/stiffness.py).
-        speed = wp.length(new_v)
-        if not wp.isfinite(speed):
-            speed = FAST
-        wp.atomic_max(signal, 0, speed)
-        stiffening = wp.static(sound_speed_ratio)(mat, s.history[p])
-        if stiff.shape[0] > 1:  # sim/stiffness.py bounds what lies beyond the margin
-            stiff[p] = stiffening
-            stiffening = wp.min(stiffening, SLACK)
-        wp.atomic_max(signal, 1, stiffening)
-        s.x[p] = xn
-        s.v[p] = new_v
-        s.C[p] = new_C
+        wp.static(finish)(materials, colliders, s, p, gb, cf, xp, new_v, new_C, new_C, dt, stiff, signal)
 
     return g2p
 

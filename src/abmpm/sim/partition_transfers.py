@@ -20,7 +20,6 @@ import warp as wp
 
 from .colliders import (
     ALL_NODES,
-    PARTICLE_BAND,
     ColliderArrays,
     ColorField,
     boundary_velocity,
@@ -29,12 +28,11 @@ from .colliders import (
     node_bit,
     nodes_facing,
 )
-from .g2p import FAST, advect, clamp_to_domain
+from .g2p import make_finish
 from .grid import BLOCK_NODES, GridSpec, cell_flag, stencil_slots, vec8i
 from .materials import ALL_MODELS, MaterialParams, dispatch
 from .parallel import Reach, widen_reach
 from .state import ParticleArrays
-from .stiffness import SLACK
 from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
@@ -159,6 +157,31 @@ def sparse_reach(slots: vec8i):
     return lo, hi
 
 
+@wp.func
+def node_momentum(band: int, W: float, Wu: float, bit: float, mv: wp.vec3, mC: wp.mat33, affine: wp.mat33,
+                  d: wp.vec3, centre: wp.vec3, stress: wp.mat33, grad_r: wp.vec3, dS: wp.vec3, S: float):
+    # Eq. 8's momentum of one node: MLS's for one grid's B-splines; in the band APIC about the
+    # weights' centroid and the force -V0 tau grad W, grad W = (grad r - W grad S) / S
+    dp = W * (mv + affine * d)
+    if band != 0:
+        dp = W * (mv + mC * (d - centre)) + bit * (stress * ((grad_r - Wu * dS) / S))
+    return dp
+
+
+@wp.func
+def gather_node(band: int, W: float, vi: wp.vec3, d: wp.vec3, grad_r: wp.vec3, dS: wp.vec3, S: float,
+                v: wp.vec3, B: wp.mat33, D: wp.mat33, G: wp.mat33):
+    # Eqs. 5-6 from one node: v and B; in the band also D and the exact velocity gradient
+    v_out = v + W * vi
+    B_out = B + W * wp.outer(vi, d)
+    D_out = D
+    G_out = G
+    if band != 0:
+        D_out = D + W * wp.outer(d, d)
+        G_out = G + wp.outer(vi, (grad_r - W * dS) / S)
+    return v_out, B_out, D_out, G_out
+
+
 def _make_p2g(cpic: bool, models: tuple[int, ...]):
     particle_stress = dispatch(models).particle_stress
 
@@ -192,7 +215,9 @@ def _make_p2g(cpic: bool, models: tuple[int, ...]):
         S = float(1.0)
         dS = wp.vec3(0.0)
         centre = wp.vec3(0.0)  # the weights' centroid from x_p (0 for one grid's own B-splines)
+        band = int(0)
         if kind == BAND:
+            band = 1
             S, dS, centre = moments(gc, gf, share_c, share_f, base_c, fx_c, base_f, fx_f, slots)
         if kind != PURE_FINE:
             affine = mC + (4.0 * gc.inv_dx * gc.inv_dx) * stress  # MLS (Eqs. 9-10)
@@ -203,14 +228,12 @@ def _make_p2g(cpic: bool, models: tuple[int, ...]):
                         sc = share_c[n]
                         if sc > 0.0:
                             Wu = sc * weight(wc, i, j, k) / S  # W before CPIC's mask
-                            W = Wu * node_bit(mask_c, i, j, k)
-                            d = offset(fx_c, i, j, k, gc.dx)
-                            dp = W * (mv + affine * d)
-                            if kind == BAND:  # exact: the force with grad W, APIC about the centroid
-                                grad = (sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx) - Wu * dS) / S
-                                dp = W * (mv + mC * (d - centre)) + node_bit(mask_c, i, j, k) * (stress * grad)
-                            wp.atomic_add(mv_c, n, dp)
-                            wp.atomic_add(m_c, n, W * m)
+                            bit = node_bit(mask_c, i, j, k)
+                            grad_r = sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx)
+                            wp.atomic_add(mv_c, n, node_momentum(band, Wu * bit, Wu, bit, mv, mC, affine,
+                                                                 offset(fx_c, i, j, k, gc.dx), centre, stress,
+                                                                 grad_r, dS, S))
+                            wp.atomic_add(m_c, n, Wu * bit * m)
             widen_reach(reach_c, coarse_node(gc.dims, base_c, 0, 0, 0), coarse_node(gc.dims, base_c, 2, 2, 2))
         if kind != PURE_COARSE:
             affine = mC + (4.0 * gf.inv_dx * gf.inv_dx) * stress
@@ -221,14 +244,12 @@ def _make_p2g(cpic: bool, models: tuple[int, ...]):
                         sf = fine_share(share_f, n)
                         if sf > 0.0:
                             Wu = sf * weight(wf, i, j, k) / S  # W before CPIC's mask
-                            W = Wu * node_bit(mask_f, i, j, k)
-                            d = offset(fx_f, i, j, k, gf.dx)
-                            dp = W * (mv + affine * d)
-                            if kind == BAND:
-                                grad = (sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx) - Wu * dS) / S
-                                dp = W * (mv + mC * (d - centre)) + node_bit(mask_f, i, j, k) * (stress * grad)
-                            wp.atomic_add(mv_f, n, dp)
-                            wp.atomic_add(m_f, n, W * m)
+                            bit = node_bit(mask_f, i, j, k)
+                            grad_r = sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx)
+                            wp.atomic_add(mv_f, n, node_momentum(band, Wu * bit, Wu, bit, mv, mC, affine,
+                                                                 offset(fx_f, i, j, k, gf.dx), centre, stress,
+                                                                 grad_r, dS, S))
+                            wp.atomic_add(m_f, n, Wu * bit * m)
             lo, hi = sparse_reach(slots)
             widen_reach(reach_f, lo, hi)
 
@@ -236,8 +257,7 @@ def _make_p2g(cpic: bool, models: tuple[int, ...]):
 
 
 def _make_g2p(cpic: bool, models: tuple[int, ...]):
-    ops = dispatch(models)
-    deform_particle, sound_speed_ratio = ops.deform_particle, ops.sound_speed_ratio
+    finish = make_finish(cpic, models)  # Eqs. 7 (with the exact gradient in the band), 13-14, advection, CFL
 
     @variant("g2p_partition", cpic, models=models)
     def g2p_partition(first: int, materials: wp.array(dtype=MaterialParams), gc: GridSpec, gf: GridSpec,
@@ -269,7 +289,9 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
         S = float(1.0)
         dS = wp.vec3(0.0)
         centre = wp.vec3(0.0)
+        band = int(0)
         if kind == BAND:
+            band = 1
             S, dS, centre = moments(gc, gf, share_c, share_f, base_c, fx_c, base_f, fx_f, slots)
         new_v = wp.vec3(0.0)
         B = wp.mat33(0.0)
@@ -282,14 +304,11 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
                         n = coarse_node(gc.dims, base_c, i, j, k)
                         sc = share_c[n]
                         if sc > 0.0:
-                            W = sc * weight(wc, i, j, k) / S
                             vi = wp.where(node_bit(mask_c, i, j, k) == 0.0, v_bar, v_c[n])
-                            d = offset(fx_c, i, j, k, gc.dx) - centre
-                            new_v += W * vi
-                            B += W * wp.outer(vi, d)
-                            if kind == BAND:
-                                D += W * wp.outer(d, d)
-                                G += wp.outer(vi, (sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx) - W * dS) / S)
+                            new_v, B, D, G = gather_node(band, sc * weight(wc, i, j, k) / S, vi,
+                                                         offset(fx_c, i, j, k, gc.dx) - centre,
+                                                         sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx), dS, S,
+                                                         new_v, B, D, G)
         if kind != PURE_COARSE:
             for i in range(3):
                 for j in range(3):
@@ -297,14 +316,11 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
                         n = fine_node(slots, base_f, i, j, k)
                         sf = fine_share(share_f, n)
                         if sf > 0.0:
-                            W = sf * weight(wf, i, j, k) / S
                             vi = wp.where(node_bit(mask_f, i, j, k) == 0.0, v_bar, v_f[n])
-                            d = offset(fx_f, i, j, k, gf.dx) - centre
-                            new_v += W * vi
-                            B += W * wp.outer(vi, d)
-                            if kind == BAND:
-                                D += W * wp.outer(d, d)
-                                G += wp.outer(vi, (sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx) - W * dS) / S)
+                            new_v, B, D, G = gather_node(band, sf * weight(wf, i, j, k) / S, vi,
+                                                         offset(fx_f, i, j, k, gf.dx) - centre,
+                                                         sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx), dS, S,
+                                                         new_v, B, D, G)
         new_C = wp.mat33(0.0)
         if kind == BAND:
             new_C = B * wp.inverse(D)  # APIC's affine field with the particle's own D
@@ -319,28 +335,7 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
         if s.level[p] == gf.level:
             g = gf
             cf = color_f
-        mat = materials[s.material[p]]
-        wp.static(deform_particle)(mat, s.F, s.history, p, G, dt)  # Eq. 7 (the exact gradient in the band)
-        xn = clamp_to_domain(g, xp + dt * new_v)
-        if wp.static(cpic):
-            cb = s.surface_body[p]
-            if cb >= 0 or wp.length(xn - xp) >= PARTICLE_BAND * g.dx or near_surface(cf, g, xn):
-                xn, new_v, c = advect(colliders, cf, g, cb, s.surface_point[p], s.surface_side[p], xp, xn, new_v, dt)
-                s.surface_point[p] = c.surface_point
-                s.surface_side[p] = c.surface_side
-                s.surface_body[p] = c.body
-        speed = wp.length(new_v)
-        if not wp.isfinite(speed):
-            speed = FAST
-        wp.atomic_max(signal, 0, speed)
-        stiffening = wp.static(sound_speed_ratio)(mat, s.history[p])
-        if stiff.shape[0] > 1:
-            stiff[p] = stiffening
-            stiffening = wp.min(stiffening, SLACK)
-        wp.atomic_max(signal, 1, stiffening)
-        s.x[p] = xn
-        s.v[p] = new_v
-        s.C[p] = new_C
+        wp.static(finish)(materials, colliders, s, p, g, cf, xp, new_v, new_C, G, dt, stiff, signal)  # Eq. 7: G
 
     return g2p_partition
 
