@@ -760,7 +760,8 @@ def test_bench_checks_its_options_before_it_runs(tmp_path):
     for argv in (["--threads", "-1"], ["--seconds", "nan"], ["--frames", "0"], ["--json", str(tmp_path)],
                  ["--one-step", "0"], ["--one-step", "0.1"],  # one step is the interface suite's
                  ["--criterion", "both"], ["--criterion", "nearest"],  # so is the criterion, of these three
-                 ["--halo", "2"], ["--halo", "-1"], ["--halo", "two"]):  # and the halo
+                 ["--halo", "2"], ["--halo", "-1"], ["--halo", "two"],  # and the halo
+                 ["--coupling", "partition"], ["--coupling", "glue"]):  # and the coupling
         with pytest.raises(SystemExit) as exc:
             main(["bench", "--suite", "adaptive", *argv])
         assert exc.value.code == 2, argv

@@ -322,6 +322,9 @@ def run_bench(argv: list[str] | None = None) -> dict:
     ap.add_argument("--halo", type=_halo, default=None, metavar="CELLS",
                     help="interface suite: the plate cases' and the thrown water's adaptive runs grow the refined "
                          "region by this many coarse cells instead of the scenes' 1 (2: closer to finest, more cost)")
+    ap.add_argument("--coupling", choices=get_args(Refinement.model_fields["coupling"].annotation), default=None,
+                    help="interface suite: the plate cases', the thrown water's and the free bar's adaptive runs "
+                         "couple the levels this way instead of the default (partition: momentum exact, experimental)")
     ap.add_argument("--seeds", type=int, default=1,
                     help="interface suite: the plate cases and the thrown water over at least this many jitter "
                          "seeds each (one run's chaos moves some rows by 5-15%%; 4 seeds take about 4x as long)")
@@ -341,7 +344,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
         ap.error(f"--reference {args.reference}: no such file")
     if args.one_step is not None and args.suite != "interface":
         ap.error("--one-step: only the interface suite runs at one step (add --suite interface)")
-    for option in ("criterion", "halo"):
+    for option in ("criterion", "halo", "coupling"):
         if getattr(args, option) is not None and args.suite != "interface":
             ap.error(f"--{option}: only the interface suite takes it (add --suite interface)")
     if args.seeds != 1 and (args.suite != "interface" or args.seeds < 1):
@@ -420,7 +423,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
                   + f"nodes {row['nodes_ns']} ns a band particle "
                   f"(taken {100 * row['taken']:.1f}%)", flush=True)
     interface = (run_interface_suite(device, step=args.one_step, criterion=args.criterion, seeds=args.seeds,
-                                     halo=args.halo)
+                                     halo=args.halo, coupling=args.coupling)
                  if args.suite == "interface" else {})
     scaling = []
     if args.suite == "scaling":
@@ -431,7 +434,7 @@ def run_bench(argv: list[str] | None = None) -> dict:
         "cpu_count": os.cpu_count(), "python": platform.python_version(), "rows": rows,
         "adaptive": adaptive, "colliders": colliders, "interface": interface,
         "interface_options": {"one_step": args.one_step, "criterion": args.criterion, "seeds": args.seeds,
-                              "halo": args.halo}
+                              "halo": args.halo, "coupling": args.coupling}
         if interface else {},
         "scaling": scaling,
         "reconstruction": reconstruction,

@@ -166,7 +166,7 @@ def one_step(scene: sm.Scene, cfl: float) -> float:
 def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tuple[int, ...] = (0,),
              tilt: float = 0.0, hole: bool = False, lift: float = 0.0, fluid: dict | None = None,
              step: float | None = None, criterion: str | None = None, jet: float = 0.0,
-             halo: int | None = None) -> dict:
+             halo: int | None = None, coupling: str | None = None) -> dict:
     """Mass through (below the plate's plane), steps and wall seconds of one slit case
     in every mode, each the mean over the particle jitter's ``seeds`` (the single runs'
     mass through in ``through_seeds``); ``tilt`` and ``lift`` as in ``plate_with_slit``; ``hole``:
@@ -179,7 +179,8 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
     plate's whole band: docs/benchmarks.md, "The plate matrix over 24 cases, four ways"); ``jet``:
     the water thrown at the plate (``water_over_plate``), the mass through counted beyond it;
     ``halo``: the adaptive run's refinement halo instead of the default (docs/benchmarks.md, "The
-    halo as the accuracy knob")."""
+    halo as the accuracy knob"); ``coupling``: the adaptive run's level coupling instead of the
+    default (docs/method.md, "The two grids as one basis")."""
     out = {}
     for mode in MODES:
         runs = []
@@ -195,6 +196,8 @@ def run_slit(slit_cells: float, b: int, seconds: float, device: str, seeds: tupl
                 scene.simulation.refinement.criterion = criterion
             if halo is not None:
                 scene.simulation.refinement.halo = halo
+            if coupling is not None:
+                scene.simulation.refinement.coupling = coupling
             sim = Simulation(scene, device=device)
             up = sim.colliders.body_meshes()[0].face_normals[0]
             up = up if (up[1] > 0) == (jet <= 0.0) else -up  # against the way through
@@ -386,13 +389,16 @@ def free_bar(mode: str, b: int, dx: float = 0.05) -> sm.Scene:
     )
 
 
-def run_free_bar(seconds: float, device: str, b: int = 2) -> dict:
+def run_free_bar(seconds: float, device: str, b: int = 2, coupling: str | None = None) -> dict:
     """The free bar frame by frame: the largest total momentum (a conservation law: it
     stays 0) against the halves' |momentum| at the start, and the kinetic energy at
     the end against finest's."""
     res = {}
     for mode in MODES:
-        sim = Simulation(free_bar(mode, b), device=device)
+        scene = free_bar(mode, b)
+        if coupling is not None:
+            scene.simulation.refinement.coupling = coupling
+        sim = Simulation(scene, device=device)
         p = sim.particles()
         scale = 0.5 * float((p.mass * np.linalg.norm(p.v, axis=1)).sum())  # one half's momentum
         drift = 0.0
@@ -422,12 +428,14 @@ def run_blade_cut(seconds: float, device: str, b: int = 2) -> dict:
 
 
 def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = None,
-                        criterion: str | None = None, seeds: int = 1, halo: int | None = None) -> dict:
+                        criterion: str | None = None, seeds: int = 1, halo: int | None = None,
+                        coupling: str | None = None) -> dict:
     """Every case of the matrix, printed as it finishes; returns the results. ``step``: the
     plate cases at one fixed step for every mode, ``criterion`` and ``halo``: their adaptive runs
     with that refinement criterion and halo (``run_slit``), ``seeds``: the plate cases and the thrown water
     over at least that many jitter seeds (a single run's chaos moves some rows by 5-15%:
-    docs/benchmarks.md); the other cases as always."""
+    docs/benchmarks.md); ``coupling``: the plate cases', the thrown water's and the free bar's
+    adaptive runs with that level coupling; the other cases as always."""
     results = {}
 
     def lifted(lift: float) -> str:
@@ -440,9 +448,10 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
     for name, w, b, own, tilt, hole, lift, *fluid in passages:
         runs = tuple(range(max(len(own), seeds)))
         r = results[name] = run_slit(w, b, seconds, device, runs, tilt, hole, lift, fluid[0] if fluid else None, step,
-                                     criterion, halo=halo)
+                                     criterion, halo=halo, coupling=coupling)
         at = (f" (one step, cfl {step:g} at rest)" if step else "") + (f" (criterion {criterion})" if criterion else "")
         at += f" (halo {halo})" if halo is not None else ""
+        at += f" ({coupling} coupling)" if coupling is not None else ""
         print(f"{name}{at}: mass through original {r['original']['through']:.4f}  "
               f"adaptive {r['adaptive']['through']:.4f}  finest {r['finest']['through']:.4f}  "
               f"-> adaptive / finest {r['through_ratio']} (goal 0.9-1.1); steps {r['steps_ratio']}x finest's "
@@ -453,7 +462,7 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
         name = f"{'round hole' if hole else 'slit'} {w} cells, b = {b}, water thrown {'up' if jet > 0 else 'down'} at it"
         jets.append(name)
         r = results[name] = run_slit(w, b, JET_SECONDS, device, tuple(range(seeds)), hole=hole, step=step,
-                                     criterion=criterion, jet=jet, halo=halo)
+                                     criterion=criterion, jet=jet, halo=halo, coupling=coupling)
         print(f"{name}: mass through adaptive / finest {r['through_ratio']} (finest {r['finest']['through']:.4f}, "
               f"original {r['original']['through']:.4f}); steps {r['steps_ratio']}x, wall {r['wall_ratio']}x"
               f"{f' ({seeds} seeds{seed_error(r)})' if seeds > 1 else ''}", flush=True)
@@ -471,6 +480,7 @@ def run_interface_suite(device: str, seconds: float = 0.5, step: float | None = 
             ("blade cut", "a blade cutting a jelly block (blade_cut, 0.6 s)", run_blade_cut, 0.6, (2,)),
             ("free bar", "free jelly bar across the interface", run_free_bar, 0.4, (2, 3))):
         for b in factors:
-            r = results[f"{key}, b = {b}"] = run(span, device, b)
+            extra = {"coupling": coupling} if run is run_free_bar and coupling is not None else {}
+            r = results[f"{key}, b = {b}"] = run(span, device, b, **extra)
             print(f"{title}, b = {b}: {summary_line(key, r)}", flush=True)
     return results
