@@ -230,7 +230,8 @@ def run_watched(spec, body, gravity, side_of, seconds=SECONDS, mode="original", 
     on) or that crossed the collider in that step (``crossing``).
     Returns (worst count, steps, particles at the end, particles split)."""
     # adaptive: a box around the impact is refined (keeps the fine grid, and the test, small)
-    refinement = sm.Refinement(mode=mode, factor=factor, boxes=[(tuple(C - 0.15), tuple(C + 0.15))], coupling=coupling)
+    refinement = sm.Refinement(mode=mode, factor=factor, boxes=[(tuple(C - 0.15), tuple(C + 0.15))],
+                               coupling=coupling)
     spec = spec.model_copy(update={"refine": False})
     scene = abmpm.Scene(
         simulation=abmpm.SimulationSettings(domain_max=(L, L, L), dx=DX, gravity=tuple(float(g) for g in gravity),
@@ -329,8 +330,7 @@ def test_letter_panel_is_crossed_only_through_its_holes(winding, side, speed, tm
 
 
 @pytest.mark.parametrize("case", ["sheet-back", "thin_box-front", "letter_panel-back", "hourglass-inside",
-                                  "letter_panel-back-3", "hourglass-inside-3", "sheet-back-2-partition",
-                                  "letter_panel-back-2-partition"])
+                                  "letter_panel-back-3", "hourglass-inside-3", "letter_panel-back-2-partition"])
 def test_split_particles_stay_on_their_side(case, tmp_path):
     """Adaptive mode: the particles are split next to the surface (Eq. 15); no child
     may land on, or later move to, the other side of its parent. At b = 3 (the cases
@@ -338,8 +338,9 @@ def test_split_particles_stay_on_their_side(case, tmp_path):
     fine grid (docs/method.md), up to 11 at a time; on the letter panel one level-1
     particle crossed next to a letter's edge until ``stop_crossing`` cast the
     particle's own path as well as the ray from its backed-off start. With the partition
-    coupling (the cases ending in partition) each particle reaches both grids' nodes in the
-    band, each grid's masked by its own colors (sim/partition_transfers.py)."""
+    coupling (the case ending in partition) each particle reaches both grids' nodes in the
+    band, each grid's masked by its own colors (sim/partition_transfers.py); its sheet case
+    passed too (35 s, not in the suite)."""
     kind, where, *factor = case.split("-")
     coupling = factor.pop() if factor and factor[-1] == "partition" else "overlap"
     side = 1 if where in ("front", "inside") else -1
