@@ -100,6 +100,13 @@ class Partition:
         self.share_c = wp.ones(coarse.capacity, dtype=float, device=device)
         self.share_f = wp.zeros(1, dtype=float, device=device)
         self.kinds = wp.zeros(tuple(d - 1 for d in coarse.dims), dtype=wp.int32, device=device)  # cell_kinds
+        self.cpic = cpic
+        self.masks = wp.zeros(1, dtype=wp.vec2i, device=device)  # each particle's CPIC masks, P2G -> G2P
+
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` particles' masks (a host point: the substeps allocate nothing)."""
+        if self.cpic and self.masks.shape[0] < capacity:
+            self.masks = wp.zeros(capacity, dtype=wp.vec2i, device=self.device)
 
     def update(self, region_cells: np.ndarray | None, first_slot: int) -> None:
         """Shares after the region changed (``region_cells``, all of them) or after the fine
@@ -125,13 +132,15 @@ class Partition:
         for site, (first, count) in enumerate(ranges):
             self.launcher.launch(self.kernels[0], count,
                                  lambda part, first, count: [*common, *private[0].parts[part], private[0].reach[part],
-                                                             *private[1].parts[part], private[1].reach[part]],
+                                                             *private[1].parts[part], private[1].reach[part],
+                                                             self.masks],
                                  start=first, label="P2G partition", min_range=MIN_TRANSFER_RANGE, site=site)
 
     def g2p(self, s, ranges: list, materials, colliders, dt: wp.array, stiff: wp.array, signal_slots: list) -> None:
         """Every particle from both grids (Eqs. 5-7, 11-14, 23-25), its CFL signal into ``signal_slots``."""
         common = [materials, self.coarse.spec, self.fine.spec, colliders, self.coarse.color, self.fine.color,
-                  self.share_c, self.share_f, self.kinds, dt, self.coarse.v, self.fine.v, s.arrays(), stiff]
+                  self.share_c, self.share_f, self.kinds, dt, self.coarse.v, self.fine.v, s.arrays(), self.masks,
+                  stiff]
         for site, (first, count) in enumerate(ranges):
             self.launcher.launch(self.kernels[1], count, lambda part, first, count: [*common, signal_slots[part]],
                                  start=first, label="G2P partition", min_range=MIN_TRANSFER_RANGE, site=site)

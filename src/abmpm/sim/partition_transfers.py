@@ -8,8 +8,8 @@ band where both grids have weight (``BAND``) it uses the normalised weights W = 
 their exact gradients, for the force (-V0 tau grad W) and for the deformation update
 (grad v = sum v_i grad W_i^T), and APIC's C = B D^-1 with its own D about the weights'
 centroid: MLS's D^-1 on the blended functions lost energy in the one-dimensional model
-(``docs/prototypes/partition_1d.py``). The helpers take values, not structs: Warp passes a
-struct to a function it does not inline by copy, 54 times a particle here.
+(``docs/prototypes/partition_1d.py``). The stencils are the one-grid passes' own
+(``sim/stencil.py``); only the weights' gradients are this module's.
 """
 
 from __future__ import annotations
@@ -29,10 +29,12 @@ from .colliders import (
     nodes_facing,
 )
 from .g2p import make_finish
-from .grid import BLOCK_NODES, GridSpec, cell_flag, stencil_slots, vec8i
+from .grid import GridSpec, cell_flag
 from .materials import ALL_MODELS, MaterialParams, dispatch
-from .parallel import Reach, widen_reach
+from .p2g import record_reach
+from .parallel import Reach
 from .state import ParticleArrays
+from .stencil import Stencil, dense_node_at, dense_stencil, offset_at, sparse_node_at, sparse_stencil, weight_at
 from .variant import variant
 
 wp.set_module_options({"enable_backward": False})
@@ -43,59 +45,16 @@ PURE_FINE = wp.constant(2)  # only fine functions of share 1
 
 
 @wp.func
-def stencil_at(g: GridSpec, x: wp.vec3):
-    # lowest node of the 3x3x3 stencil (clamped into the grid) and x's offset from it, in cells
-    X = (x - g.origin) * g.inv_dx
-    base = wp.vec3i(wp.clamp(int(X[0] - 0.5), 0, g.dims[0] - 3), wp.clamp(int(X[1] - 0.5), 0, g.dims[1] - 3),
-                    wp.clamp(int(X[2] - 0.5), 0, g.dims[2] - 3))
-    return base, X - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
-
-
-@wp.func
-def spline(fx: wp.vec3):
-    # quadratic B-spline weights (rows: node 0, 1, 2; columns: axis) and their derivatives in fx
-    a = wp.vec3(1.5) - fx
-    b = fx - wp.vec3(1.0)
-    c = fx - wp.vec3(0.5)
-    w = wp.matrix_from_rows(0.5 * wp.cw_mul(a, a), wp.vec3(0.75) - wp.cw_mul(b, b), 0.5 * wp.cw_mul(c, c))
-    dw = wp.matrix_from_rows(-a, -2.0 * b, c)
-    return w, dw
+def spline_gradient(fx: wp.vec3):
+    # derivatives in fx of ``bspline_weights`` (rows: node 0, 1, 2; columns: axis)
+    return wp.matrix_from_rows(fx - wp.vec3(1.5), -2.0 * (fx - wp.vec3(1.0)), fx - wp.vec3(0.5))
 
 
 @wp.func(inline=True)
-def weight(w: wp.mat33, i: int, j: int, k: int):
-    return w[i, 0] * w[j, 1] * w[k, 2]
-
-
-@wp.func(inline=True)
-def weight_gradient(w: wp.mat33, dw: wp.mat33, i: int, j: int, k: int, inv_dx: float):
+def weight_gradient(st: Stencil, dw: wp.mat33, i: int, j: int, k: int, inv_dx: float):
     # grad N_i (per m) of stencil node (i, j, k)
+    w = st.w
     return inv_dx * wp.vec3(dw[i, 0] * w[j, 1] * w[k, 2], w[i, 0] * dw[j, 1] * w[k, 2], w[i, 0] * w[j, 1] * dw[k, 2])
-
-
-@wp.func(inline=True)
-def offset(fx: wp.vec3, i: int, j: int, k: int, dx: float):
-    # x_i - x_p of stencil node (i, j, k)
-    return (wp.vec3(float(i), float(j), float(k)) - fx) * dx
-
-
-@wp.func(inline=True)
-def coarse_node(dims: wp.vec3i, base: wp.vec3i, i: int, j: int, k: int):
-    # dense_node_index from the grid's dims (a value: no GridSpec copied into the 27-node loops)
-    return ((base[0] + i) * dims[1] + base[1] + j) * dims[2] + base[2] + k
-
-
-@wp.func(inline=True)
-def fine_node(slots: vec8i, base: wp.vec3i, i: int, j: int, k: int):
-    # stencil_node of the fine grid from the stencil's block slots; -1 where inactive
-    x = base[0] + i
-    y = base[1] + j
-    z = base[2] + k
-    slot = slots[((x >> 2) - (base[0] >> 2)) * 4 + ((y >> 2) - (base[1] >> 2)) * 2 + ((z >> 2) - (base[2] >> 2))]
-    n = int(-1)
-    if slot >= 0:
-        n = slot * BLOCK_NODES + ((x & 3) * 4 + (y & 3)) * 4 + (z & 3)
-    return n
 
 
 @wp.func(inline=True)
@@ -107,54 +66,54 @@ def fine_share(share_f: wp.array(dtype=float), n: int):
 
 
 @wp.func
-def moments(gc: GridSpec, gf: GridSpec, share_c: wp.array(dtype=float), share_f: wp.array(dtype=float),
-            base_c: wp.vec3i, fx_c: wp.vec3, base_f: wp.vec3i, fx_f: wp.vec3, slots: vec8i):
-    # a band particle's S = sum r, grad S and sum r (x_i - x_p): the normalisation and the centroid
-    wc, dwc = spline(fx_c)
-    wf, dwf = spline(fx_f)
-    S = float(0.0)
+def functions(gc: GridSpec, gf: GridSpec, share_c: wp.array(dtype=float), share_f: wp.array(dtype=float),
+              kinds: wp.array3d(dtype=wp.int32), x: wp.vec3):
+    # A particle's stencils on both grids, their weights' gradients, whether it is in the band (its
+    # cell's kind; a PURE_FINE cell whose fine stencil reaches an inactive block, share 0 there, is
+    # band too), and in the band S = sum r, grad S and the weights' centroid from x (Eq. 8's APIC
+    # about it): for one grid's own B-splines S = 1, grad S = 0, the centroid x itself
+    st_c = dense_stencil(gc, x)
+    st_f = sparse_stencil(gf, x)
+    dwc = spline_gradient(st_c.fx)
+    dwf = spline_gradient(st_f.fx)
+    kind = cell_flag(gc, kinds, x)
+    if kind == PURE_FINE and wp.min(st_f.slots) < 0:
+        kind = BAND
+    S = float(1.0)
     dS = wp.vec3(0.0)
-    X = wp.vec3(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                s = share_c[coarse_node(gc.dims, base_c, i, j, k)]
-                S += s * weight(wc, i, j, k)
-                dS += s * weight_gradient(wc, dwc, i, j, k, gc.inv_dx)
-                X += (s * weight(wc, i, j, k)) * offset(fx_c, i, j, k, gc.dx)
-                s = fine_share(share_f, fine_node(slots, base_f, i, j, k))
-                S += s * weight(wf, i, j, k)
-                dS += s * weight_gradient(wf, dwf, i, j, k, gf.inv_dx)
-                X += (s * weight(wf, i, j, k)) * offset(fx_f, i, j, k, gf.dx)
-    return S, dS, X / S
+    centre = wp.vec3(0.0)
+    if kind == BAND:
+        S = float(0.0)
+        X = wp.vec3(0.0)
+        for i in range(3):
+            for j in range(3):
+                for k in range(3):
+                    s = share_c[dense_node_at(gc, st_c, i, j, k)]
+                    S += s * weight_at(st_c, i, j, k)
+                    dS += s * weight_gradient(st_c, dwc, i, j, k, gc.inv_dx)
+                    X += (s * weight_at(st_c, i, j, k)) * offset_at(gc, st_c, i, j, k)
+                    s = fine_share(share_f, sparse_node_at(gf, st_f, i, j, k))
+                    S += s * weight_at(st_f, i, j, k)
+                    dS += s * weight_gradient(st_f, dwf, i, j, k, gf.inv_dx)
+                    X += (s * weight_at(st_f, i, j, k)) * offset_at(gf, st_f, i, j, k)
+        centre = X / S
+    return st_c, st_f, dwc, dwf, kind, S, dS, centre
 
 
 @wp.func
 def masks(gc: GridSpec, gf: GridSpec, color_c: ColorField, color_f: ColorField, x: wp.vec3, level: int,
-          surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, base_c: wp.vec3i, fx_c: wp.vec3,
-          base_f: wp.vec3i, fx_f: wp.vec3):
+          surface_point: wp.vec3, surface_side: wp.vec3, surface_body: int, st_c: Stencil, st_f: Stencil):
     # CPIC (sim/colliders.py): each grid's stencil nodes on the particle's side of every surface.
     # A level-1 particle's color reaches a few fine cells; on the coarse grid, beyond its own
     # band, the nodes' colors say which nodes face it (as p2g_overlap does)
     mask_c = ALL_NODES
     mask_f = ALL_NODES
     if surface_body >= 0:
-        mask_c = compatibility_mask(surface_point, surface_side, surface_body, x, color_c, gc, base_c, fx_c)
-        mask_f = compatibility_mask(surface_point, surface_side, surface_body, x, color_f, gf, base_f, fx_f)
+        mask_c = compatibility_mask(surface_point, surface_side, surface_body, x, color_c, gc, st_c.base, st_c.fx)
+        mask_f = compatibility_mask(surface_point, surface_side, surface_body, x, color_f, gf, st_f.base, st_f.fx)
     elif level == 1 and near_surface(color_c, gc, x):
-        mask_c = nodes_facing(x, color_c, gc, base_c, fx_c)
+        mask_c = nodes_facing(x, color_c, gc, st_c.base, st_c.fx)
     return mask_c, mask_f
-
-
-@wp.func
-def sparse_reach(slots: vec8i):
-    lo = int(2147483647)
-    hi = int(-1)
-    for q in range(8):
-        if slots[q] >= 0:
-            lo = wp.min(lo, slots[q] * BLOCK_NODES)
-            hi = wp.max(hi, slots[q] * BLOCK_NODES + BLOCK_NODES - 1)
-    return lo, hi
 
 
 @wp.func
@@ -190,68 +149,56 @@ def _make_p2g(cpic: bool, models: tuple[int, ...]):
                       gf: GridSpec, color_c: ColorField, color_f: ColorField, share_c: wp.array(dtype=float),
                       share_f: wp.array(dtype=float), kinds: wp.array3d(dtype=wp.int32), dt_now: wp.array(dtype=float),
                       mv_c: wp.array(dtype=wp.vec3), m_c: wp.array(dtype=float), reach_c: Reach,
-                      mv_f: wp.array(dtype=wp.vec3), m_f: wp.array(dtype=float), reach_f: Reach):
+                      mv_f: wp.array(dtype=wp.vec3), m_f: wp.array(dtype=float), reach_f: Reach,
+                      kept: wp.array(dtype=wp.vec2i)):
         # Eq. 8's mass and APIC momentum, Eqs. 9-10's force folded into it
         p = wp.tid() + first
         xp = s.x[p]
-        base_c, fx_c = stencil_at(gc, xp)
-        base_f, fx_f = stencil_at(gf, xp)
-        slots = stencil_slots(gf, base_f)
-        kind = cell_flag(gc, kinds, xp)
-        if kind == PURE_FINE and wp.min(slots) < 0:
-            kind = BAND  # a fine node of its stencil is not active: its share is 0 there
+        st_c, st_f, dwc, dwf, kind, S, dS, centre = functions(gc, gf, share_c, share_f, kinds, xp)
+        band = wp.where(kind == BAND, 1, 0)
         mask_c = ALL_NODES
         mask_f = ALL_NODES
         if wp.static(cpic):
             mask_c, mask_f = masks(gc, gf, color_c, color_f, xp, s.level[p], s.surface_point[p], s.surface_side[p],
-                                   s.surface_body[p], base_c, fx_c, base_f, fx_f)
+                                   s.surface_body[p], st_c, st_f)
+            kept[p] = wp.vec2i(mask_c, mask_f)  # for this substep's G2P
         tau = wp.static(particle_stress)(materials[s.material[p]], s.F, s.history, p, s.C[p])
         stress = (-dt_now[0] * s.volume[p]) * tau
         m = s.mass[p]
         mv = m * s.v[p]
         mC = m * s.C[p]
-        wc, dwc = spline(fx_c)
-        wf, dwf = spline(fx_f)
-        S = float(1.0)
-        dS = wp.vec3(0.0)
-        centre = wp.vec3(0.0)  # the weights' centroid from x_p (0 for one grid's own B-splines)
-        band = int(0)
-        if kind == BAND:
-            band = 1
-            S, dS, centre = moments(gc, gf, share_c, share_f, base_c, fx_c, base_f, fx_f, slots)
         if kind != PURE_FINE:
             affine = mC + (4.0 * gc.inv_dx * gc.inv_dx) * stress  # MLS (Eqs. 9-10)
             for i in range(3):
                 for j in range(3):
                     for k in range(3):
-                        n = coarse_node(gc.dims, base_c, i, j, k)
+                        n = dense_node_at(gc, st_c, i, j, k)
                         sc = share_c[n]
                         if sc > 0.0:
-                            Wu = sc * weight(wc, i, j, k) / S  # W before CPIC's mask
+                            Wu = sc * weight_at(st_c, i, j, k) / S  # W before CPIC's mask
                             bit = node_bit(mask_c, i, j, k)
-                            grad_r = sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx)
+                            grad_r = sc * weight_gradient(st_c, dwc, i, j, k, gc.inv_dx)
                             wp.atomic_add(mv_c, n, node_momentum(band, Wu * bit, Wu, bit, mv, mC, affine,
-                                                                 offset(fx_c, i, j, k, gc.dx), centre, stress,
+                                                                 offset_at(gc, st_c, i, j, k), centre, stress,
                                                                  grad_r, dS, S))
                             wp.atomic_add(m_c, n, Wu * bit * m)
-            widen_reach(reach_c, coarse_node(gc.dims, base_c, 0, 0, 0), coarse_node(gc.dims, base_c, 2, 2, 2))
+            record_reach(gc, st_c, reach_c)
         if kind != PURE_COARSE:
             affine = mC + (4.0 * gf.inv_dx * gf.inv_dx) * stress
             for i in range(3):
                 for j in range(3):
                     for k in range(3):
-                        n = fine_node(slots, base_f, i, j, k)
+                        n = sparse_node_at(gf, st_f, i, j, k)
                         sf = fine_share(share_f, n)
                         if sf > 0.0:
-                            Wu = sf * weight(wf, i, j, k) / S  # W before CPIC's mask
+                            Wu = sf * weight_at(st_f, i, j, k) / S  # W before CPIC's mask
                             bit = node_bit(mask_f, i, j, k)
-                            grad_r = sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx)
+                            grad_r = sf * weight_gradient(st_f, dwf, i, j, k, gf.inv_dx)
                             wp.atomic_add(mv_f, n, node_momentum(band, Wu * bit, Wu, bit, mv, mC, affine,
-                                                                 offset(fx_f, i, j, k, gf.dx), centre, stress,
+                                                                 offset_at(gf, st_f, i, j, k), centre, stress,
                                                                  grad_r, dS, S))
                             wp.atomic_add(m_f, n, Wu * bit * m)
-            lo, hi = sparse_reach(slots)
-            widen_reach(reach_f, lo, hi)
+            record_reach(gf, st_f, reach_f)
 
     return p2g_partition
 
@@ -264,35 +211,23 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
                       colliders: ColliderArrays, color_c: ColorField, color_f: ColorField,
                       share_c: wp.array(dtype=float), share_f: wp.array(dtype=float), kinds: wp.array3d(dtype=wp.int32),
                       dt_now: wp.array(dtype=float), v_c: wp.array(dtype=wp.vec3), v_f: wp.array(dtype=wp.vec3),
-                      s: ParticleArrays, stiff: wp.array(dtype=float), signal: wp.array(dtype=float)):
+                      s: ParticleArrays, kept: wp.array(dtype=wp.vec2i), stiff: wp.array(dtype=float),
+                      signal: wp.array(dtype=float)):
         # Eqs. 5-7 and 11-14 with the functions the particle scattered with; an incompatible
         # node lends the particle's boundary velocity (Eqs. 23-25)
         p = wp.tid() + first
         dt = dt_now[0]
         xp = s.x[p]
-        base_c, fx_c = stencil_at(gc, xp)
-        base_f, fx_f = stencil_at(gf, xp)
-        slots = stencil_slots(gf, base_f)
-        kind = cell_flag(gc, kinds, xp)
-        if kind == PURE_FINE and wp.min(slots) < 0:
-            kind = BAND
+        st_c, st_f, dwc, dwf, kind, S, dS, centre = functions(gc, gf, share_c, share_f, kinds, xp)
+        band = wp.where(kind == BAND, 1, 0)
         mask_c = ALL_NODES
         mask_f = ALL_NODES
         v_bar = wp.vec3(0.0)
         if wp.static(cpic):
-            mask_c, mask_f = masks(gc, gf, color_c, color_f, xp, s.level[p], s.surface_point[p], s.surface_side[p],
-                                   s.surface_body[p], base_c, fx_c, base_f, fx_f)
+            mask_c = kept[p][0]  # the masks P2G scattered with
+            mask_f = kept[p][1]
             if s.surface_body[p] >= 0:
                 v_bar = boundary_velocity(colliders, s.surface_body[p], s.surface_side[p], xp, s.v[p] + dt * gc.gravity)
-        wc, dwc = spline(fx_c)
-        wf, dwf = spline(fx_f)
-        S = float(1.0)
-        dS = wp.vec3(0.0)
-        centre = wp.vec3(0.0)
-        band = int(0)
-        if kind == BAND:
-            band = 1
-            S, dS, centre = moments(gc, gf, share_c, share_f, base_c, fx_c, base_f, fx_f, slots)
         new_v = wp.vec3(0.0)
         B = wp.mat33(0.0)
         D = wp.mat33(0.0)
@@ -301,25 +236,25 @@ def _make_g2p(cpic: bool, models: tuple[int, ...]):
             for i in range(3):
                 for j in range(3):
                     for k in range(3):
-                        n = coarse_node(gc.dims, base_c, i, j, k)
+                        n = dense_node_at(gc, st_c, i, j, k)
                         sc = share_c[n]
                         if sc > 0.0:
                             vi = wp.where(node_bit(mask_c, i, j, k) == 0.0, v_bar, v_c[n])
-                            new_v, B, D, G = gather_node(band, sc * weight(wc, i, j, k) / S, vi,
-                                                         offset(fx_c, i, j, k, gc.dx) - centre,
-                                                         sc * weight_gradient(wc, dwc, i, j, k, gc.inv_dx), dS, S,
+                            new_v, B, D, G = gather_node(band, sc * weight_at(st_c, i, j, k) / S, vi,
+                                                         offset_at(gc, st_c, i, j, k) - centre,
+                                                         sc * weight_gradient(st_c, dwc, i, j, k, gc.inv_dx), dS, S,
                                                          new_v, B, D, G)
         if kind != PURE_COARSE:
             for i in range(3):
                 for j in range(3):
                     for k in range(3):
-                        n = fine_node(slots, base_f, i, j, k)
+                        n = sparse_node_at(gf, st_f, i, j, k)
                         sf = fine_share(share_f, n)
                         if sf > 0.0:
                             vi = wp.where(node_bit(mask_f, i, j, k) == 0.0, v_bar, v_f[n])
-                            new_v, B, D, G = gather_node(band, sf * weight(wf, i, j, k) / S, vi,
-                                                         offset(fx_f, i, j, k, gf.dx) - centre,
-                                                         sf * weight_gradient(wf, dwf, i, j, k, gf.inv_dx), dS, S,
+                            new_v, B, D, G = gather_node(band, sf * weight_at(st_f, i, j, k) / S, vi,
+                                                         offset_at(gf, st_f, i, j, k) - centre,
+                                                         sf * weight_gradient(st_f, dwf, i, j, k, gf.inv_dx), dS, S,
                                                          new_v, B, D, G)
         new_C = wp.mat33(0.0)
         if kind == BAND:

@@ -21,9 +21,8 @@ a host point:
    nodes (Eqs. 11-12, 23-25), deformation update and return mapping (Eqs. 7, 13-14), advection
    that never crosses a collider; the fastest particle into the CFL signal (sim/stiffness.py).
 
-``run_segment(state)`` runs the segment's substeps (eagerly, or by replaying a captured graph),
-``end_segment()`` reads the per-substep signals back at once. Everything else (sampling, output,
-diagnostics, time stepping) lives outside.
+``run_segment(state)`` runs the segment's substeps (eagerly, or replaying a captured graph), ``end_segment()``
+reads their signals back at once. Everything else (sampling, output, time stepping) lives outside.
 """
 
 from __future__ import annotations
@@ -118,8 +117,7 @@ class MPMSolver:
         self.capture = bool(config.cuda_graph) and self.launcher.device.is_cuda
         # A time step per level (sim/time_levels.py): the slow set, in adaptive mode
         # without moving colliders; ``block`` substeps of the fast set make one of its steps.
-        per_level = (config.time_steps == "per_level" and (colliders is None or colliders.static)
-                     and self.partition is None)
+        per_level = config.time_steps == "per_level" and (colliders is None or colliders.static) and not self.partition
         self.slow = SlowSet(self.grid, self.launcher, device) if self.refiner and per_level else None
         self._no_slow = no_slow(device)
         self.slow_count = 0  # particles of the slow set, at the front of the storage (counted at each sort)
@@ -359,6 +357,8 @@ class MPMSolver:
             self._occ = wp.zeros(self.grid.capacity, dtype=wp.int32, device=self.device)
         for g in self.grids:
             self.launcher.private_grids(g.level, g.mv, g.m)
+        if self.partition is not None:
+            self.partition.reserve(state.capacity)
         self.stiffness.reserve(self.grids, state.capacity)
         state.arrays()
         self._find_level_ranges(state)
