@@ -24,7 +24,7 @@ from .scene.model import Scene
 from .sim.collider_set import ColliderSet
 from .sim.diagnostics import first_non_finite, frame_diagnostics
 from .sim.materials import uses_deformation_gradient
-from .sim.refine import merge_families
+from .sim.refine import group_strays, merge_families
 from .sim.solver import SEGMENT_MAX, MPMSolver
 from .sim.state import DYNAMIC, STATIC, ParticleState, check_fields
 from .sim.stiffness import SLACK as STIFFENING_SLACK
@@ -337,18 +337,26 @@ class Simulation:
         self._last_good_ids, self._last_good_slow = self.solver.next_id, self._slow_signal
 
     def _merge(self, snap: dict[str, np.ndarray]) -> bool:
-        """Merge families that left the region (by the margin) back into level-0 particles
-        (whether any did)."""
+        """Merge families that left the region (by the margin) back into level-0 particles,
+        then the strays of torn fluid families by place (whether any merged)."""
         r = self.scene.simulation.refinement
         region = self.solver.region
         if r.merge_margin:
             region = binary_dilation(region, iterations=r.merge_margin)
-        cell = np.clip(((snap["x"] - self.solver.grid_origin) / self.dx).astype(int), 0, np.array(region.shape) - 1)
-        # and no family merges while a child touches a collider (it carries a color: within
-        # the particle band of a surface), where a coarse particle would stand a coarse
-        # cell's contact distance off it (a blade's faces, which the region leaves coarse)
-        keep_fine = region[cell[:, 0], cell[:, 1], cell[:, 2]] | (snap["surface_body"] >= 0)
-        merged, n = merge_families(snap, keep_fine, r.factor)
+
+        def keep_fine(a: dict[str, np.ndarray]) -> np.ndarray:
+            # in the region (and margin), or touching a collider (it carries a color: within the
+            # particle band of a surface), where a coarse particle would stand a coarse cell's
+            # contact distance off it (a blade's faces, which the region leaves coarse)
+            cell = np.clip(((a["x"] - self.solver.grid_origin) / self.dx).astype(int), 0, np.array(region.shape) - 1)
+            return region[cell[:, 0], cell[:, 1], cell[:, 2]] | (a["surface_body"] >= 0)
+
+        merged, n = merge_families(snap, keep_fine(snap), r.factor)
+        if r.merge_strays:
+            fluid = np.array([not uses_deformation_gradient(m.model) for m in self.scene.materials])
+            if group_strays(merged, keep_fine(merged), r.factor, fluid, self.solver.grid_origin):
+                merged, more = merge_families(merged, keep_fine(merged), r.factor)
+                n += more
         if n:
             self._load_arrays(merged)
             self.solver.adopt(self._state)

@@ -95,6 +95,10 @@ class Refinement(_Strict):
         default_factory=list, description="extra boxes to refine, [min, max]"
     )
     merge: bool = Field(True, description="merge split families back once they have left the region")
+    merge_strays: bool = Field(
+        True, description="with merge: also merge a fluid's children whose families tore apart, b^3 at a time where "
+        "one cell of the parent lattice holds at least b^3 of them"
+    )
     time_steps: Literal["global", "per_level"] = Field(
         "per_level", description="per_level: level-0 particles far from the fine level take the coarse time step; "
         "global: every particle takes the finest step"

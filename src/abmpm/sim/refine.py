@@ -395,3 +395,38 @@ def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> t
     stay[members] = False
     out = {name: np.concatenate([a[name][stay], new[name]]) for name in a}
     return out, k
+
+
+def group_strays(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int, may_group: np.ndarray,
+                 origin: np.ndarray) -> int:
+    """Children whose families tore apart, made into new families by place (beyond the paper,
+    after Gao et al.'s merging by proximity, which the paper leaves optional; host-side).
+
+    A level-1 particle of a material with ``may_group`` (per material: fluids, which keep no F
+    of their lattice) and not flagged in ``keep_fine`` is a stray. Strays are binned by the cell
+    of their parents' lattice (from ``origin``, spacing h = b V^(1/3), V a child's volume), material
+    and V; in every cell that holds
+    at least b^3 of them, the b^3 nearest its centre (ties by id) become one family, named after
+    the least id among them (``a["family"]``, in place): ``merge_families`` then merges them as it
+    merges any family (mass exact, momentum to round-off), and the merged particle goes on under
+    that child's id. Only full groups: a parent's worth of mass in a parent's volume, never a
+    light particle among coarse ones. Returns the number of groups."""
+    ns = b**3
+    idx = np.nonzero((a["level"] == 1) & ~keep_fine & may_group[a["material"]])[0]
+    if len(idx) < ns:
+        return 0
+    volumes, kind = np.unique(a["volume"][idx], return_inverse=True)  # one lattice per child volume
+    h = (b * np.cbrt(volumes.astype(np.float64)))[kind.ravel()][:, None]
+    cell = np.floor((a["x"][idx].astype(np.float64) - origin) / h).astype(np.int64)
+    _, key = np.unique(np.column_stack([cell, a["material"][idx], kind.ravel()]), axis=0, return_inverse=True)
+    key = key.ravel()
+    dist = np.linalg.norm(a["x"][idx] - (origin + (cell + 0.5) * h), axis=1)
+    order = np.lexsort((a["id"][idx], dist, key))
+    start = np.r_[0, np.flatnonzero(np.diff(key[order])) + 1]
+    counts = np.diff(np.r_[start, len(order)])
+    rank = np.arange(len(order)) - np.repeat(start, counts)
+    chosen = idx[order[np.repeat(counts >= ns, counts) & (rank < ns)]]  # each full cell's b^3 nearest, together
+    k = len(chosen) // ns
+    if k:
+        a["family"][chosen] = np.repeat(a["id"][chosen].reshape(k, ns).min(axis=1), ns)
+    return k
