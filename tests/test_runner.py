@@ -469,7 +469,7 @@ def _thin_box_through_the_water():
 def test_an_adaptive_run_that_refined_most_of_its_material_says_finest_may_be_as_fast(tmp_path):
     # With a refinement box over the whole domain every particle splits into b^3 = 8
     # children: finest mode would hold as many particles as adaptive mode does, at a
-    # third of the cost of each particle-step (docs/benchmarks.md, "When adaptive mode
+    # fraction of the cost of each particle-step (docs/benchmarks.md, "When adaptive mode
     # pays"), and the run says so. A box over a corner the material never reaches refines
     # nothing (finest would hold 8 times the particles): nothing to say; nor in finest mode.
     from abmpm.scene.model import with_mode

@@ -250,10 +250,11 @@ def _idle_colliders(scene: Scene, sim) -> list[str]:
     return notes
 
 
-# What an adaptive particle-step costs against a finest one on a CPU: 2.2-3.5 times, measured
-# (docs/benchmarks.md, "When adaptive mode pays"). Below this many finest particles per
-# adaptive one, finest mode is about as fast.
-ADAPTIVE_PARTICLE_COST = 3.0
+# What an adaptive particle-step costs against a finest one on a CPU: 3.3-3.6 times, measured
+# (docs/benchmarks.md, "When adaptive mode pays" and, since finest shed the BLAS threads' load,
+# "The BLAS libraries' idle threads"). Below this many finest particles per adaptive one,
+# finest mode is about as fast.
+ADAPTIVE_PARTICLE_COST = 3.5
 
 
 def _refined_share(scene: Scene, sim) -> list[str]:
@@ -269,7 +270,7 @@ def _refined_share(scene: Scene, sim) -> list[str]:
         return []
     share = n1 / family / max(n0 + n1 / family, 1e-9)
     return [f"adaptive mode refined {share:.0%} of the material over this run: finest mode would hold only "
-            f"{ratio:.1f} times its particles, and on a CPU an adaptive particle-step costs 2-3.5 times a finest "
+            f"{ratio:.1f} times its particles, and on a CPU an adaptive particle-step costs about 3.5 times a finest "
             "one, so finest mode (the reference) is likely as fast here. Adaptive mode pays where a small part "
             "of the material is refined (docs/benchmarks.md, \"When adaptive mode pays\")"]
 
