@@ -354,8 +354,9 @@ class Simulation:
         merged, n = merge_families(snap, keep_fine(snap), r.factor)
         if r.merge_strays:
             fluid = np.array([not uses_deformation_gradient(m.model) for m in self.scene.materials])
-            if group_strays(merged, keep_fine(merged), r.factor, fluid, self.solver.grid_origin):
-                merged, more = merge_families(merged, keep_fine(merged), r.factor)
+            family, groups = group_strays(merged, keep_fine(merged), r.factor, fluid, self.solver.grid_origin)
+            if groups:
+                merged, more = merge_families({**merged, "family": family}, keep_fine(merged), r.factor)
                 n += more
         if n:
             self._load_arrays(merged)

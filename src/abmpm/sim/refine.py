@@ -398,23 +398,25 @@ def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> t
 
 
 def group_strays(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int, may_group: np.ndarray,
-                 origin: np.ndarray) -> int:
+                 origin: np.ndarray) -> tuple[np.ndarray, int]:
     """Children whose families tore apart, made into new families by place (beyond the paper,
     after Gao et al.'s merging by proximity, which the paper leaves optional; host-side).
 
     A level-1 particle of a material with ``may_group`` (per material: fluids, which keep no F
     of their lattice) and not flagged in ``keep_fine`` is a stray. Strays are binned by the cell
     of their parents' lattice (from ``origin``, spacing h = b V^(1/3), V a child's volume), material
-    and V; in every cell that holds
-    at least b^3 of them, the b^3 nearest its centre (ties by id) become one family, named after
-    the least id among them (``a["family"]``, in place): ``merge_families`` then merges them as it
+    and V. In every cell that holds at least b^3 of them, the b^3 nearest its centre (ties by id)
+    become one family, named after the least id among them, if they are as compact as
+    ``merge_families`` asks (each within h of their centre of mass): it then merges them as it
     merges any family (mass exact, momentum to round-off), and the merged particle goes on under
     that child's id. Only full groups: a parent's worth of mass in a parent's volume, never a
-    light particle among coarse ones. Returns the number of groups."""
+    light particle among coarse ones. Returns the particles' families with the new ones (a copy;
+    ``a`` is not changed) and the number of new families."""
     ns = b**3
+    family = a["family"].copy()
     idx = np.nonzero((a["level"] == 1) & ~keep_fine & may_group[a["material"]])[0]
     if len(idx) < ns:
-        return 0
+        return family, 0
     volumes, kind = np.unique(a["volume"][idx], return_inverse=True)  # one lattice per child volume
     h = (b * np.cbrt(volumes.astype(np.float64)))[kind.ravel()][:, None]
     cell = np.floor((a["x"][idx].astype(np.float64) - origin) / h).astype(np.int64)
@@ -425,8 +427,11 @@ def group_strays(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int, may_gr
     start = np.r_[0, np.flatnonzero(np.diff(key[order])) + 1]
     counts = np.diff(np.r_[start, len(order)])
     rank = np.arange(len(order)) - np.repeat(start, counts)
-    chosen = idx[order[np.repeat(counts >= ns, counts) & (rank < ns)]]  # each full cell's b^3 nearest, together
-    k = len(chosen) // ns
-    if k:
-        a["family"][chosen] = np.repeat(a["id"][chosen].reshape(k, ns).min(axis=1), ns)
-    return k
+    chosen = idx[order[np.repeat(counts >= ns, counts) & (rank < ns)]].reshape(-1, ns)  # a full cell's b^3 nearest
+    m = a["mass"][chosen].astype(np.float64)
+    x = a["x"][chosen].astype(np.float64)
+    com = (m[..., None] * x).sum(axis=1) / m.sum(axis=1)[:, None]
+    spread = np.linalg.norm(x - com[:, None], axis=2).max(axis=1)
+    chosen = chosen[spread <= np.cbrt(a["volume"][chosen].astype(np.float64).sum(axis=1))]  # merge_families' test
+    family[chosen] = a["id"][chosen].min(axis=1)[:, None]
+    return family, len(chosen)
