@@ -80,7 +80,7 @@ def test_torn_families_merge_by_place_conserving_mass_and_momentum(b):
 
 
 def test_what_must_not_merge_stays():
-    b, ns = 2, 8
+    b = 2
     a = torn_children(b, 2, seed=7, short=1)  # the last of 8 cells one child short
     keep = np.zeros(len(a["x"]), dtype=bool)
     in_region = np.all(np.floor((a["x"] - 0.2) / H) == 0, axis=1)  # the first cell: in the region
