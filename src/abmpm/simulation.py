@@ -89,6 +89,8 @@ class Simulation:
             st = st.model_copy(update={"dx": st.dx / b})
             scene = scene.model_copy(update={"simulation": st})
         self.scene = scene
+        # per material: keeps no F, its volume ratio J in ``history`` (fluids)
+        self._j_in_history = np.array([not uses_deformation_gradient(m.model) for m in scene.materials])
         self.device = choose_device(device if device is not None else st.device)
         self.frame_dt = 1.0 / st.fps
         self.dx = st.dx  # spacing of the coarsest grid
@@ -353,10 +355,10 @@ class Simulation:
 
         merged, n = merge_families(snap, keep_fine(snap), r.factor)
         if r.merge_strays:
-            fluid = np.array([not uses_deformation_gradient(m.model) for m in self.scene.materials])
-            family, groups = group_strays(merged, keep_fine(merged), r.factor, fluid, self.solver.grid_origin)
+            keep = keep_fine(merged)
+            family, groups = group_strays(merged, keep, r.factor, self._j_in_history, self.solver.grid_origin)
             if groups:
-                merged, more = merge_families({**merged, "family": family}, keep_fine(merged), r.factor)
+                merged, more = merge_families({**merged, "family": family}, keep, r.factor)
                 n += more
         if n:
             self._load_arrays(merged)
@@ -379,8 +381,7 @@ class Simulation:
 
     def _particles(self, arrays: dict[str, np.ndarray]) -> Particles:
         # models without F (fluid) keep their volume ratio J in ``history``
-        j_in_history = np.array([not uses_deformation_gradient(m.model) for m in self.scene.materials])
-        j_in_history = j_in_history[arrays["material"]]
+        j_in_history = self._j_in_history[arrays["material"]]
         J = np.linalg.det(arrays["F"].astype(np.float64)).astype(np.float32)
         J[j_in_history] = arrays["history"][j_in_history]
         fields = {k: arrays[k] for k in Particles.__dataclass_fields__ if k != "J"}

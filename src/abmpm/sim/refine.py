@@ -336,6 +336,19 @@ class Refiner:
         return self._allocate()
 
 
+def compact(a: dict[str, np.ndarray], idx: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
+    """Per group of the particles ``idx`` (``group``: 0 .. k - 1 each): is every member within one
+    parent lattice spacing (the cube root of the group's summed volume) of the group's centre of
+    mass, so that merged it stands where its members did."""
+    m = a["mass"][idx].astype(np.float64)
+    M = np.bincount(group, m, minlength=k)
+    com = np.stack([np.bincount(group, m * a["x"][idx, d], minlength=k) for d in range(3)], axis=1) / M[:, None]
+    dist = np.linalg.norm(a["x"][idx] - com[group], axis=1)
+    spread = np.zeros(k)
+    np.maximum.at(spread, group, dist)
+    return spread <= np.cbrt(np.bincount(group, a["volume"][idx].astype(np.float64), minlength=k))
+
+
 def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> tuple[dict[str, np.ndarray], int]:
     """Merge back families of split particles (beyond the paper; switchable).
 
@@ -353,16 +366,9 @@ def merge_families(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int) -> t
         return a, 0
     fam_ids, inv, counts = np.unique(a["family"][fine], return_inverse=True, return_counts=True)
     idx = np.nonzero(fine)[0]
-    m = a["mass"][idx].astype(np.float64)
-    M = np.bincount(inv, m)
-    com = np.stack([np.bincount(inv, m * a["x"][idx, k]) for k in range(3)], axis=1) / M[:, None]
-    dist = np.linalg.norm(a["x"][idx] - com[inv], axis=1)
-    h_parent = np.cbrt(np.bincount(inv, a["volume"][idx].astype(np.float64)))
-    spread = np.zeros(len(fam_ids))
-    np.maximum.at(spread, inv, dist)
     blocked = np.zeros(len(fam_ids), dtype=bool)
     np.logical_or.at(blocked, inv, keep_fine[idx])
-    ok = (counts == ns) & ~blocked & (spread <= h_parent)
+    ok = (counts == ns) & ~blocked & compact(a, idx, inv, len(fam_ids))
     if not ok.any():
         return a, 0
     sel = ok[inv]  # children (positions in idx) that merge
@@ -428,10 +434,6 @@ def group_strays(a: dict[str, np.ndarray], keep_fine: np.ndarray, b: int, may_gr
     counts = np.diff(np.r_[start, len(order)])
     rank = np.arange(len(order)) - np.repeat(start, counts)
     chosen = idx[order[np.repeat(counts >= ns, counts) & (rank < ns)]].reshape(-1, ns)  # a full cell's b^3 nearest
-    m = a["mass"][chosen].astype(np.float64)
-    x = a["x"][chosen].astype(np.float64)
-    com = (m[..., None] * x).sum(axis=1) / m.sum(axis=1)[:, None]
-    spread = np.linalg.norm(x - com[:, None], axis=2).max(axis=1)
-    chosen = chosen[spread <= np.cbrt(a["volume"][chosen].astype(np.float64).sum(axis=1))]  # merge_families' test
+    chosen = chosen[compact(a, chosen.ravel(), np.repeat(np.arange(len(chosen)), ns), len(chosen))]  # as merge_families
     family[chosen] = a["id"][chosen].min(axis=1)[:, None]
     return family, len(chosen)
